@@ -1,0 +1,1 @@
+"""motionaug: augment layer."""

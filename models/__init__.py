@@ -1,0 +1,1 @@
+"""motionaug: models layer."""

@@ -1,0 +1,1 @@
+"""motionaug: workflows layer."""
