@@ -22,6 +22,7 @@ import torch
 from torch import Tensor
 
 from augment.errors import MotionDataError
+from augment.io import atomic_save_npy
 from augment.kinematics import (
     forward_kinematics_cont6d,
     inverse_kinematics,
@@ -130,6 +131,10 @@ def extract_features_and_joints(
     r_rot = quats[:, 0]
     root_step = qrot(r_rot[1:], pos[1:, 0] - pos[:-1, 0])
     r_velocity = qmul(r_rot[1:], qinv(r_rot[:-1]))
+    # Deviation from the reference: take the short way round (w >= 0) before asin. The reference's
+    # asin(y) flips the sign of one frame's turn whenever the facing crosses 180 degrees, so such
+    # clips did not decode back to their own trajectory; every other clip is unchanged.
+    r_velocity = torch.where(r_velocity[:, :1] < 0, -r_velocity, r_velocity)
 
     horizontal = torch.tensor([1.0, 0.0, 1.0], dtype=pos.dtype)
     local = qrot(r_rot[:, None].expand(-1, n_joints, -1), pos - pos[:, :1] * horizontal)  # ric, (T, J, 3)
@@ -347,33 +352,38 @@ class Normalizer:
 
     def save(self, directory: str | Path) -> None:
         folder = Path(directory)
-        folder.mkdir(parents=True, exist_ok=True)
-        np.save(folder / MEAN_FILE, self.mean)
-        np.save(folder / STD_FILE, self.std)
+        atomic_save_npy(folder / MEAN_FILE, self.mean)
+        atomic_save_npy(folder / STD_FILE, self.std)
 
 
 def compute_mean_std(features: Iterable[np.ndarray], skeleton: Skeleton = T2M) -> Normalizer:
-    """Mean and Std over all frames of all clips, as HumanML3D's ``cal_mean_variance``.
+    """Mean and Std over all frames of all clips, as HumanML3D's ``cal_mean_variance``, in one streaming pass.
 
     Each block's std is replaced by that block's average std (the reference divides by 1.0),
     so channels within a block keep their relative scale. Clips with NaN are an error here,
-    where the reference silently skipped them.
+    where the reference silently skipped them. Memory is O(one clip): running sums in float64,
+    each clip centred on the first clip's mean to keep the variance numerically stable.
     """
-    clips = []
+    count, shift = 0, None
+    total = total_sq = np.zeros(skeleton.feature_dim)
     for i, clip in enumerate(features):
         arr = np.asarray(clip, dtype=np.float64)
         if arr.ndim != 2 or arr.shape[1] != skeleton.feature_dim:
             raise MotionDataError(f"clip {i}", f"expected (T, {skeleton.feature_dim}) features, got {arr.shape}")
         if not np.isfinite(arr).all():
             raise MotionDataError(f"clip {i}", "features contain NaN or infinite values")
-        clips.append(arr)
-    if not clips:
+        if len(arr) == 0:
+            continue
+        shift = arr.mean(axis=0) if shift is None else shift
+        centred = arr - shift
+        total, total_sq, count = total + centred.sum(axis=0), total_sq + (centred**2).sum(axis=0), count + len(arr)
+    if count == 0 or shift is None:
         raise MotionDataError("features", "no clips to compute Mean/Std from")
-    data = np.concatenate(clips, axis=0)
-    mean = data.mean(axis=0)
-    std = data.std(axis=0)
+    mean_c = total / count
+    std = np.sqrt(np.maximum(total_sq / count - mean_c**2, 0.0))
+    mean = mean_c + shift
     for name, block in feature_slices(skeleton).items():
         std[block] = std[block].mean()
         if not std[block.start] > 0:
-            raise MotionDataError("features", f"block {name} is constant over all {len(data)} frames (zero std)")
+            raise MotionDataError("features", f"block {name} is constant over all {count} frames (zero std)")
     return Normalizer(mean.astype(np.float32), std.astype(np.float32))

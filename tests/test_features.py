@@ -380,3 +380,13 @@ def test_quaternion_root_helpers_are_consistent() -> None:
     rot, _ = recover_root_rot_pos(data)
     step = rot[1]
     torch.testing.assert_close(qmul(step, step), rot[2])
+
+
+def test_extraction_round_trips_a_curved_walk_through_180_degrees() -> None:
+    """Turning through 180 degrees: the reference's asin(y) flipped one frame's turn; ours must not."""
+    from augment.synth.animator import ClipSpec, render
+
+    clip = render(ClipSpec(content="walk_curve", duration=6, curvature=0.7))
+    ex = extract_features_and_joints(clip.joints)
+    back = recover_from_ric(torch.from_numpy(ex.features).double(), 22).numpy()
+    assert np.abs(back - ex.joints[:-1]).max() < 1e-4
