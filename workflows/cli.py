@@ -8,14 +8,26 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated, Literal, TypeVar
+from typing import TYPE_CHECKING, Annotated, Literal, TypeVar
 
 import typer
 from pydantic import ValidationError
 from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TaskID,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
 from rich.table import Table
 
 from augment.errors import MotionDataError
+
+if TYPE_CHECKING:
+    from schemas.run_config import RunConfig
 
 app = typer.Typer(help="Stylistic expansion of text-to-motion datasets.", no_args_is_help=True, add_completion=False)
 corpus_app = typer.Typer(help="Make, import and inspect motion corpora.", no_args_is_help=True)
@@ -34,6 +46,16 @@ def user_errors() -> Iterator[None]:
     except (MotionDataError, ValidationError, FileNotFoundError) as err:
         err_console.print(f"[red]error:[/red] {_one_line(err)}", highlight=False)
         raise typer.Exit(1) from None
+
+
+@contextmanager
+def usage_errors() -> Iterator[None]:
+    """Like ``user_errors`` for a bad config or argument: one line, exit code 2."""
+    try:
+        yield
+    except (MotionDataError, ValidationError, FileNotFoundError) as err:
+        err_console.print(f"[red]error:[/red] {_one_line(err)}", highlight=False)
+        raise typer.Exit(2) from None
 
 
 def _one_line(err: Exception) -> str:
@@ -113,5 +135,111 @@ def demo(
     corpus_inspect(corpus)
 
 
+class _Bars:
+    """Rich progress bars fed by the executor's ``RunProgress`` calls."""
+
+    def __init__(self, progress: Progress) -> None:
+        self.progress = progress
+        self.tasks: dict[str, TaskID] = {}
+
+    def stage(self, name: str, total: int, done: int = 0) -> None:
+        self.tasks[name] = self.progress.add_task(name, total=total, completed=done)
+
+    def advance(self, name: str, n: int = 1) -> None:
+        self.progress.advance(self.tasks[name], n)
+
+
+@app.command("run")
+def run_command(
+    config: Annotated[Path, typer.Argument(help="Run config (YAML or JSON), see configs/.")],
+    address: Annotated[str | None, typer.Option(help="Ray cluster address (default: an embedded local Ray).")] = None,
+    out: Annotated[Path | None, typer.Option(help="Run folder (overrides the config's output).")] = None,
+    force: Annotated[bool, typer.Option("--force", help="Delete what the run folder holds and start over.")] = False,
+    overrides: Annotated[list[str] | None, typer.Option("--set", help="Override a config value: key.sub=value.")] = None,
+) -> None:
+    """Fine-tune every style and stylize the corpus into Parquet shards; re-running resumes."""
+    from workflows.ray_executor import execute_run
+
+    from workflows.pipeline import check_config
+
+    with usage_errors():
+        cfg = _load_config(config, overrides or [], address, out)
+        check_config(cfg)
+    columns = (
+        TextColumn("{task.description:>12}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn()
+    )
+    with Progress(*columns, console=console) as bars:
+        summary = run_safely(lambda: execute_run(cfg, force=force, progress=_Bars(bars)))
+    table = Table(title=f"run {summary.run_id}")
+    for column in ("stage", "tasks", "skipped", "seconds"):
+        table.add_column(column, justify="right" if column != "stage" else "left")
+    for name, timing in summary.manifest.stages.items():
+        table.add_row(name, str(timing.tasks), str(timing.skipped), f"{timing.seconds:.1f}")
+    console.print(table)
+    m = summary.manifest
+    console.print(
+        f"rows {m.rows}, rejects {m.rejects}, {summary.clips_per_second:.1f} clips/s over {summary.seconds:.1f} s; "
+        f"shards in {summary.run_dir / 'shards'}, manifest {summary.run_dir / 'manifest.json'}"
+    )
+
+
+def _load_config(path: Path, overrides: list[str], address: str | None, out: Path | None) -> "RunConfig":
+    from schemas.run_config import load_run_config
+
+    if not path.is_file():
+        raise MotionDataError(str(path), "config file not found")
+    try:
+        config = load_run_config(path, overrides)
+    except (ValueError, OSError) as err:
+        if isinstance(err, ValidationError):
+            raise
+        raise MotionDataError(str(path), str(err).splitlines()[0]) from None
+    updates: dict = {}
+    if address is not None:
+        updates["compute"] = config.compute.model_copy(update={"address": address})
+    if out is not None:
+        updates["output"] = out.resolve()
+    return config.model_copy(update=updates)
+
+
+@app.command("status")
+def status_command(run: Annotated[Path, typer.Argument(help="A run folder.")]) -> None:
+    """Stages done, shards done/total and rows of a run, from its markers."""
+    from workflows.pipeline import run_status
+
+    st = run_safely(lambda: run_status(run))
+    table = Table(title=f"{st.run_dir} ({st.run_id})", show_header=False)
+    for key, value in [
+        ("plan", f"{st.clips} clips" if st.planned else "not yet"), ("fine-tunes", f"{st.styles_done}/{st.styles_total}"),
+        ("shards", f"{st.shards_done}/{st.shards_total}"), ("rows", st.rows), ("rejects", st.rejects),
+        ("complete", "yes" if st.complete else "no"),
+    ]:  # fmt: skip
+        table.add_row(key, str(value))
+    console.print(table)
+
+
+@app.command("export")
+def export_command(
+    run: Annotated[Path, typer.Argument(help="A finished run folder.")],
+    out: Annotated[Path, typer.Option(help="Output folder.")],
+    fmt: Annotated[Literal["humanml3d", "parquet"], typer.Option("--format", help="Output layout.")] = "humanml3d",
+    min_content_score: Annotated[float | None, typer.Option(help="Keep stylized clips scoring at least this.")] = None,
+    keep_mean_std: Annotated[bool, typer.Option("--keep-mean-std", help="Keep the source Mean/Std.")] = False,
+) -> None:
+    """Original corpus + stylized train clips as a HumanML3D folder or one merged Parquet dataset."""
+    from augment.export import export_run
+
+    with console.status(f"exporting {run} to {out}"):
+        s = run_safely(lambda: export_run(run, out, fmt, min_content_score, keep_mean_std))
+    console.print(
+        f"wrote {s.originals} original + {s.stylized} stylized clips to {s.out} ({s.format}); splits {_counts(s.splits)}; "
+        f"left out: {s.held_out} copies of val/test clips, {s.below_score} below the score"
+    )
+
+
 def main() -> None:  # pragma: no cover - console script entry
+    app()
+
+
+if __name__ == "__main__":  # pragma: no cover - ``python -m workflows.cli``
     app()

@@ -1,0 +1,192 @@
+"""A finished run as a training set: the original corpus plus its stylized clips, in one of two layouts.
+
+``humanml3d``: the folder the standard loaders read (MDM ``Text2MotionDatasetV2`` conventions): clips in
+``new_joint_vecs/``, revised captions with lemma/POS tokens in ``texts/``, split files. Stylized copies
+of TRAIN clips go to ``train.txt``/``train_val.txt``/``all.txt`` only, never to val or test (that would
+leak test content into training); copies of val/test clips are left out. Mean/Std are recomputed from
+the exported train split (streaming) or kept from the source corpus.
+``parquet``: one merged dataset in the corpus Arrow schema (``schemas/corpus.py``).
+Both are written into a temporary folder renamed into place, so an export is all or nothing; exporting
+again replaces an earlier export (recognised by its ``export.json``) and gives the same bytes.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import uuid
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from augment.clip import MotionClip
+from augment.corpus import HumanML3DReader, ParquetCorpusWriter, detect_format, open_corpus, write_humanml3d
+from augment.errors import MotionDataError
+from augment.features import Normalizer, compute_mean_std
+from augment.io import atomic_write_text
+from augment.shards import iter_shard_rows, row_captions, row_motion
+
+EXPORT_FILE = "export.json"
+ExportFormat = Literal["humanml3d", "parquet"]
+
+
+@dataclass
+class ExportSummary:
+    out: Path
+    format: str
+    originals: int = 0
+    stylized: int = 0
+    held_out: int = 0
+    below_score: int = 0
+    splits: dict[str, int] = field(default_factory=dict)
+
+
+def _run_config(run_dir: Path) -> tuple[str, dict]:
+    manifest = run_dir / "manifest.json"
+    if not (run_dir / "_SUCCESS").is_file() or not manifest.is_file():
+        raise MotionDataError(str(run_dir), "run is not complete (no _SUCCESS); finish it with `motionaug run` first")
+    data = json.loads(manifest.read_text(encoding="utf-8"))
+    return data["run_id"], data["config"]
+
+
+def _source_split(clip: MotionClip, split_of: dict[str, str]) -> str | None:
+    return clip.meta.get("split") or split_of.get(clip.meta.get("parent", clip.id))
+
+
+def split_of_ids(root: Path) -> dict[str, str]:
+    """Id -> train/val/test from a HumanML3D folder's split files (first listing wins)."""
+    split_of: dict[str, str] = {}
+    for name in ("train", "val", "test"):
+        path = root / f"{name}.txt"
+        if path.is_file():
+            for line in path.read_text(encoding="utf-8").splitlines():
+                if line.strip():
+                    split_of.setdefault(line.strip(), name)
+    return split_of
+
+
+class _Collector:
+    """Streams originals then stylized clips, recording which split each id belongs to as it goes."""
+
+    def __init__(
+        self, run_dir: Path, run_id: str, corpus: Path, min_score: float | None, score_name: str, summary: ExportSummary
+    ) -> None:
+        self.run_dir, self.run_id, self.corpus = run_dir, run_id, corpus
+        self.min_score, self.score_name = min_score, score_name
+        self.summary = summary
+        self.splits: dict[str, list[str]] = {"train": [], "val": [], "test": []}
+
+    def clips(self) -> Iterator[MotionClip]:
+        yield from self._originals()
+        yield from self._stylized()
+
+    def _originals(self) -> Iterator[MotionClip]:
+        split_of = split_of_ids(self.corpus) if detect_format(self.corpus) == "humanml3d" else {}
+        for clip in open_corpus(self.corpus):
+            split = _source_split(clip, split_of)
+            if split in self.splits:
+                self.splits[split].append(clip.id)
+            clip.meta = {k: v for k, v in clip.meta.items() if k != "split"} | ({"split": split} if split else {})
+            self.summary.originals += 1
+            yield clip
+
+    def _stylized(self) -> Iterator[MotionClip]:
+        for row in iter_shard_rows(self.run_dir):
+            if row["split"] != "train":
+                self.summary.held_out += 1
+                continue
+            scores = dict(row["scores"] or [])
+            if self.min_score is not None and scores.get(self.score_name, -np.inf) < self.min_score:
+                self.summary.below_score += 1
+                continue
+            self.splits["train"].append(row["output_id"])
+            self.summary.stylized += 1
+            meta = {"split": "train", "source_id": row["source_id"], "method": row["method"], "run_id": self.run_id}
+            yield MotionClip(
+                row["output_id"], row_motion(row), row_captions(row), fps=float(np.float32(row["fps"])),
+                content=row["content"], style=row["style"], source=f"motionaug:{self.run_id}", meta=meta,
+            )  # fmt: skip
+
+
+def _check_scores(run_dir: Path, min_score: float | None, score_name: str) -> None:
+    if min_score is None:
+        return
+    for row in iter_shard_rows(run_dir, columns=["scores"]):
+        if score_name in dict(row["scores"] or []):
+            return
+    reason = f"--min-content-score given, but no row has a {score_name!r} score (method too simple?)"
+    raise MotionDataError(str(run_dir), reason)
+
+
+def export_run(
+    run_dir: str | Path,
+    out: str | Path,
+    fmt: ExportFormat = "humanml3d",
+    min_content_score: float | None = None,
+    keep_mean_std: bool = False,
+    score_name: str = "content",
+) -> ExportSummary:
+    """Write the original corpus + the run's stylized train clips to ``out``; returns what went where."""
+    run_dir, out = Path(run_dir), Path(out)
+    if fmt not in ("humanml3d", "parquet"):
+        raise MotionDataError("--format", f"unknown export format {fmt!r}; use humanml3d or parquet")
+    run_id, config = _run_config(run_dir)
+    corpus = Path(config["corpus"]["path"])
+    if not corpus.exists():
+        raise MotionDataError(str(corpus), "the run's source corpus is gone; exports need it for the original clips")
+    _check_target(out)
+    _check_scores(run_dir, min_content_score, score_name)
+    summary = ExportSummary(out=out, format=fmt)
+    collector = _Collector(run_dir, run_id, corpus, min_content_score, score_name, summary)
+    tmp = out.with_name(f".{out.name}.{uuid.uuid4().hex[:12]}.tmp")
+    try:
+        if fmt == "humanml3d":
+            _write_humanml3d(collector, tmp, corpus, keep_mean_std)
+        else:
+            with ParquetCorpusWriter(tmp, rows_per_file=10_000) as writer:
+                writer.write_all(collector.clips())
+        summary.splits = {k: len(v) for k, v in collector.splits.items()}
+        record = {"run_id": run_id, "format": fmt, "originals": summary.originals, "stylized": summary.stylized,
+                  "held_out": summary.held_out, "below_score": summary.below_score, "splits": summary.splits,
+                  "min_content_score": min_content_score}  # fmt: skip
+        atomic_write_text(tmp / EXPORT_FILE, json.dumps(record, indent=1, sort_keys=True) + "\n")
+        _publish(tmp, out)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return summary
+
+
+def _write_humanml3d(collector: _Collector, tmp: Path, corpus: Path, keep_mean_std: bool) -> None:
+    # the split lists are filled while write_humanml3d consumes the clips; it writes split files at the end
+    splits = collector.splits
+    train_val: list[str] = []
+    write_humanml3d(collector.clips(), tmp, splits={**splits, "train_val": train_val})
+    train_val.extend(splits["train"] + splits["val"])
+    _write_split(tmp, "train_val", train_val)
+    if keep_mean_std and detect_format(corpus) == "humanml3d":
+        mean, std = HumanML3DReader(corpus).mean_std()
+        Normalizer(mean, std).save(tmp)
+        return
+    train = HumanML3DReader(tmp, split="train", split_spans=False, on_error="raise")
+    compute_mean_std(clip.motion for clip in train).save(tmp)
+
+
+def _write_split(root: Path, name: str, ids: list[str]) -> None:
+    atomic_write_text(root / f"{name}.txt", "".join(f"{i}\n" for i in ids))
+
+
+def _check_target(out: Path) -> None:
+    if out.exists() and any(out.iterdir()) and not (out / EXPORT_FILE).is_file():
+        raise MotionDataError(str(out), "folder is not empty and holds no earlier export; choose another --out")
+
+
+def _publish(tmp: Path, out: Path) -> None:
+    """Swap the finished folder in; an earlier export moves aside first and is deleted after."""
+    old = out.with_name(f".{out.name}.{uuid.uuid4().hex[:12]}.old.tmp")
+    if out.exists():
+        out.rename(old)
+    tmp.rename(out)
+    shutil.rmtree(old, ignore_errors=True)

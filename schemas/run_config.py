@@ -1,0 +1,205 @@
+"""The run configuration of ``motionaug run``: one YAML/JSON file, validated before any work starts.
+
+Everything is ``extra="forbid"`` so a typo is an error naming the field. Relative paths resolve against
+the config file's folder. The run id is a hash of what determines the rows (corpus, styles, method,
+fan-out, seed, unit and batch sizes), not of where or on what they are computed, so re-running the same
+config resumes the same run.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from schemas.styles import StyleSpec
+
+RUN_CONFIG_VERSION = 1
+RESOLVED_CONFIG_FILE = "config.resolved.json"
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class CorpusFilters(_Strict):
+    """Which clips of the corpus are stylized (all of them when empty)."""
+
+    contents: list[str] | None = Field(default=None, description="Keep clips whose content label is listed.")
+    caption_regex: str | None = Field(default=None, description="Keep clips with a caption matching this regex.")
+    min_frames: int | None = Field(default=None, ge=1)
+    max_frames: int | None = Field(default=None, ge=1)
+
+    @field_validator("caption_regex")
+    @classmethod
+    def _compiles(cls, value: str | None) -> str | None:
+        if value is not None:
+            try:
+                re.compile(value)
+            except re.error as err:
+                raise ValueError(f"not a valid regular expression ({err})") from None
+        return value
+
+    @model_validator(mode="after")
+    def _ordered(self) -> "CorpusFilters":
+        if self.min_frames and self.max_frames and self.min_frames > self.max_frames:
+            raise ValueError(f"min_frames {self.min_frames} > max_frames {self.max_frames}")
+        return self
+
+
+class CorpusConfig(_Strict):
+    path: Path
+    format: Literal["auto", "humanml3d", "parquet"] = "auto"
+    split: str | None = Field(default=None, description="HumanML3D split file to read (default: all.txt).")
+    filters: CorpusFilters = Field(default_factory=CorpusFilters)
+
+
+class MethodConfig(_Strict):
+    name: str = Field(default="stats", min_length=1)
+    params: dict[str, Any] = Field(default_factory=dict, description="Checked by the method's validate_params.")
+
+
+class FanOutConfig(_Strict):
+    """``per_clip="all"``: every clip in every style; an int k: k styles per clip, drawn with ``seed``."""
+
+    per_clip: Literal["all"] | int = "all"
+    seed: int = 0
+
+    @field_validator("per_clip")
+    @classmethod
+    def _positive(cls, value: Literal["all"] | int) -> Literal["all"] | int:
+        if value != "all" and value < 1:
+            raise ValueError(f"must be 'all' or >= 1, got {value}")
+        return value
+
+
+class BaseModelsConfig(_Strict):
+    path: Path | None = Field(default=None, description="Pre-trained base models; None: <run>/base_models.")
+    pretrain_if_missing: bool = True
+    size: Literal["tiny", "small", "paper"] = "small"
+
+
+class ComputeConfig(_Strict):
+    """Where and how wide: ``address`` None starts an embedded local Ray with ``num_cpus``."""
+
+    address: str | None = None
+    num_cpus: int | None = Field(default=None, ge=1)
+    finetune_cpus: float = Field(default=1.0, gt=0)
+    finetune_gpus: float = Field(default=0.0, ge=0)
+    transfer_cpus: float = Field(default=1.0, gt=0)
+    transfer_gpus: float = Field(default=0.0, ge=0)
+    batch_size: int = Field(default=32, gt=0)
+    unit_size: int = Field(default=256, ge=1)
+    max_retries: int = Field(default=3, ge=0)
+    include_dashboard: bool = False
+
+
+class RunConfig(_Strict):
+    version: Literal[1] = RUN_CONFIG_VERSION
+    corpus: CorpusConfig
+    styles: list[StyleSpec] = Field(min_length=1)
+    method: MethodConfig = Field(default_factory=MethodConfig)
+    fan_out: FanOutConfig = Field(default_factory=FanOutConfig)
+    base_models: BaseModelsConfig = Field(default_factory=BaseModelsConfig)
+    compute: ComputeConfig = Field(default_factory=ComputeConfig)
+    output: Path = Path("runs/run")
+    seed: int = 0
+
+    @field_validator("styles")
+    @classmethod
+    def _unique_names(cls, styles: list[StyleSpec]) -> list[StyleSpec]:
+        names = [s.name for s in styles]
+        dupes = sorted({n for n in names if names.count(n) > 1})
+        if dupes:
+            raise ValueError(f"style names must be unique; repeated: {dupes}")
+        return styles
+
+    @model_validator(mode="after")
+    def _fan_out_fits(self) -> "RunConfig":
+        k = self.fan_out.per_clip
+        if k != "all" and k > len(self.styles):
+            raise ValueError(f"fan_out.per_clip {k} > number of styles {len(self.styles)}")
+        return self
+
+    def run_id(self) -> str:
+        """Deterministic id of what the run produces (not where it is written or how it is computed)."""
+        keep = self.model_dump(mode="json", include={"version", "corpus", "styles", "method", "fan_out", "seed"})
+        keep["batching"] = [self.compute.unit_size, self.compute.batch_size]  # seeds are drawn per unit and batch
+        keep["corpus"]["path"] = str(Path(keep["corpus"]["path"]).resolve())
+        digest = hashlib.sha256(json.dumps(keep, sort_keys=True).encode()).hexdigest()
+        return f"run-{digest[:12]}"
+
+
+def parse_override(item: str) -> tuple[list[str], Any]:
+    """``a.b.c=value`` -> (["a", "b", "c"], value); the value is read as YAML (numbers, lists, null)."""
+    if "=" not in item:
+        raise ValueError(f"override {item!r} is not key.sub=value")
+    key, raw = item.split("=", 1)
+    parts = [p for p in key.strip().split(".") if p]
+    if not parts:
+        raise ValueError(f"override {item!r} has an empty key")
+    return parts, yaml.safe_load(raw) if raw.strip() else ""
+
+
+def apply_overrides(data: dict[str, Any], overrides: list[str]) -> dict[str, Any]:
+    """Set each ``key.sub=value`` in a copy of ``data`` (intermediate tables are created)."""
+    result = json.loads(json.dumps(data, default=str))
+    for item in overrides:
+        parts, value = parse_override(item)
+        node = result
+        for part in parts[:-1]:
+            child = node.setdefault(part, {})
+            if not isinstance(child, dict):
+                raise ValueError(f"override {item!r}: {part} is not a table")
+            node = child
+        node[parts[-1]] = value
+    return result
+
+
+def read_config_file(path: Path) -> dict[str, Any]:
+    """The raw mapping of a .yaml/.yml/.json config file."""
+    text = path.read_text(encoding="utf-8")
+    data = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: a run config must be a mapping at the top level")
+    return data
+
+
+def resolve_paths(config: RunConfig, base: Path) -> RunConfig:
+    """Relative corpus/output/base-model/example paths made absolute against ``base`` (the config's folder)."""
+
+    def absolute(p: Path | None) -> Path | None:
+        return None if p is None else (p if p.is_absolute() else (base / p)).resolve()
+
+    styles = [
+        style.model_copy(update={"examples": [_absolute_example(ex, base) for ex in style.examples]})
+        for style in config.styles
+    ]
+    return config.model_copy(
+        update={
+            "corpus": config.corpus.model_copy(update={"path": absolute(config.corpus.path)}),
+            "output": absolute(config.output),
+            "base_models": config.base_models.model_copy(update={"path": absolute(config.base_models.path)}),
+            "styles": styles,
+        }
+    )
+
+
+def _absolute_example(example: Any, base: Path) -> Any:
+    source = Path(example.source)
+    if source.suffix.lower() in (".npy", ".bvh") and not source.is_absolute():
+        return example.model_copy(update={"source": str((base / source).resolve())})
+    return example
+
+
+def load_run_config(path: Path | None, overrides: list[str] | None = None, data: dict | None = None) -> RunConfig:
+    """Read, override and validate a config; paths resolve against the file's folder (or the cwd)."""
+    raw = read_config_file(path) if path is not None else dict(data or {})
+    raw = apply_overrides(raw, overrides or [])
+    base = path.resolve().parent if path is not None else Path.cwd()
+    return resolve_paths(RunConfig.model_validate(raw), base)
