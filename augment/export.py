@@ -72,10 +72,12 @@ class _Collector:
     """Streams originals then stylized clips, recording which split each id belongs to as it goes."""
 
     def __init__(
-        self, run_dir: Path, run_id: str, corpus: Path, min_score: float | None, score_name: str, summary: ExportSummary
+        self, run_dir: Path, run_id: str, corpus: Path, min_score: float | None, score_name: str, summary: ExportSummary,
+        evaluated: dict[str, float] | None = None,
     ) -> None:
         self.run_dir, self.run_id, self.corpus = run_dir, run_id, corpus
         self.min_score, self.score_name = min_score, score_name
+        self.evaluated = evaluated  # output_id -> content score from scores.parquet (``motionaug evaluate``)
         self.summary = summary
         self.splits: dict[str, list[str]] = {"train": [], "val": [], "test": []}
 
@@ -98,8 +100,7 @@ class _Collector:
             if row["split"] != "train":
                 self.summary.held_out += 1
                 continue
-            scores = dict(row["scores"] or [])
-            if self.min_score is not None and scores.get(self.score_name, -np.inf) < self.min_score:
+            if self.min_score is not None and self._score(row) < self.min_score:
                 self.summary.below_score += 1
                 continue
             self.splits["train"].append(row["output_id"])
@@ -110,12 +111,26 @@ class _Collector:
                 content=row["content"], style=row["style"], source=f"motionaug:{self.run_id}", meta=meta,
             )  # fmt: skip
 
+    def _score(self, row: dict) -> float:
+        if self.evaluated is not None:
+            return self.evaluated.get(row["output_id"], -np.inf)
+        return _shard_score(dict(row["scores"] or []), self.score_name)
 
-def _check_scores(run_dir: Path, min_score: float | None, score_name: str) -> None:
+
+def _shard_score(scores: dict[str, float], name: str) -> float:
+    """A method's score by name; ``content`` also finds ``content_score`` (the diffusion method's name)."""
+    return scores.get(name, scores.get(f"{name}_score", -np.inf))
+
+
+def _check_scores(run_dir: Path, min_score: float | None, score_name: str, evaluated: dict[str, float] | None) -> None:
     if min_score is None:
         return
+    if evaluated is not None:
+        if evaluated:
+            return
+        raise MotionDataError(str(run_dir / "scores.parquet"), "--min-content-score given, but no clip has a content score")
     for row in iter_shard_rows(run_dir, columns=["scores"]):
-        if score_name in dict(row["scores"] or []):
+        if np.isfinite(_shard_score(dict(row["scores"] or []), score_name)):
             return
     reason = f"--min-content-score given, but no row has a {score_name!r} score (method too simple?)"
     raise MotionDataError(str(run_dir), reason)
@@ -138,9 +153,10 @@ def export_run(
     if not corpus.exists():
         raise MotionDataError(str(corpus), "the run's source corpus is gone; exports need it for the original clips")
     _check_target(out)
-    _check_scores(run_dir, min_content_score, score_name)
+    evaluated = _evaluated_scores(run_dir) if min_content_score is not None else None
+    _check_scores(run_dir, min_content_score, score_name, evaluated)
     summary = ExportSummary(out=out, format=fmt)
-    collector = _Collector(run_dir, run_id, corpus, min_content_score, score_name, summary)
+    collector = _Collector(run_dir, run_id, corpus, min_content_score, score_name, summary, evaluated)
     tmp = out.with_name(f".{out.name}.{uuid.uuid4().hex[:12]}.tmp")
     try:
         if fmt == "humanml3d":
@@ -157,6 +173,13 @@ def export_run(
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return summary
+
+
+def _evaluated_scores(run_dir: Path) -> dict[str, float] | None:
+    """Content scores from ``scores.parquet`` when the run has been evaluated (they win over the shards')."""
+    from augment.evaluation import read_content_scores  # late: evaluation pulls in the classifiers
+
+    return read_content_scores(run_dir)
 
 
 def _write_humanml3d(collector: _Collector, tmp: Path, corpus: Path, keep_mean_std: bool) -> None:

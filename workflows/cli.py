@@ -203,11 +203,24 @@ def _load_config(path: Path, overrides: list[str], address: str | None, out: Pat
 
 
 @app.command("status")
-def status_command(run: Annotated[Path, typer.Argument(help="A run folder.")]) -> None:
-    """Stages done, shards done/total and rows of a run, from its markers."""
+def status_command(
+    run: Annotated[str, typer.Argument(help="A run folder, or a job/run id with --address.")],
+    address: Annotated[str | None, typer.Option(help="Dashboard URL (http://HEAD:8265): RUN is a job id.")] = None,
+) -> None:
+    """Stages done, shards done/total and rows of a run; with --address also the job's state on the cluster."""
     from workflows.pipeline import run_status
 
-    st = run_safely(lambda: run_status(run))
+    run_dir: Path | None = Path(run)
+    if address is not None:
+        from workflows.jobs import job_state
+
+        job = run_safely(lambda: job_state(address, run))
+        console.print(f"job {job.job_id}: {job.status}" + (f" ({job.message})" if job.message else ""), highlight=False)
+        run_dir = job.run_dir if job.run_dir is not None and job.run_dir.is_dir() else None
+        if run_dir is None:
+            console.print("run folder not reachable from here; progress shows on the cluster's storage")
+            return
+    st = run_safely(lambda: run_status(run_dir))
     table = Table(title=f"{st.run_dir} ({st.run_id})", show_header=False)
     for key, value in [
         ("plan", f"{st.clips} clips" if st.planned else "not yet"), ("fine-tunes", f"{st.styles_done}/{st.styles_total}"),
@@ -218,17 +231,81 @@ def status_command(run: Annotated[Path, typer.Argument(help="A run folder.")]) -
     console.print(table)
 
 
+@app.command("submit")
+def submit_command(
+    config: Annotated[Path, typer.Argument(help="Run config (YAML or JSON); its paths must exist on the cluster.")],
+    address: Annotated[str, typer.Option(help="Dashboard URL of the cluster, e.g. http://HEAD:8265.")],
+    out: Annotated[Path | None, typer.Option(help="Run folder on the cluster (overrides the config's output).")] = None,
+    overrides: Annotated[list[str] | None, typer.Option("--set", help="Override a config value: key.sub=value.")] = None,
+    retry: Annotated[bool, typer.Option("--retry", help="Resubmit a FAILED/STOPPED run as <job id>-<n>; it resumes.")] = False,
+    cluster_paths: Annotated[
+        bool, typer.Option("--cluster-paths", help="Paths exist only on the cluster: check method params, not files.")
+    ] = False,
+) -> None:
+    """Submit the run to a Ray cluster through the Jobs API; the job id is motionaug-<run id>."""
+    from augment.methods.registry import validate_method_params
+    from workflows.jobs import submit_run
+    from workflows.pipeline import check_config
+
+    with usage_errors():
+        cfg = _load_config(config, overrides or [], None, out)
+        if cluster_paths:
+            validate_method_params(cfg.method.name, cfg.method.params)
+        else:
+            check_config(cfg)
+    job = run_safely(lambda: submit_run(cfg, address, retry=retry))
+    console.print(f"submitted job {job.job_id} (run {job.run_id}, folder {job.run_dir})", highlight=False)
+    console.print(f"dashboard: {job.dashboard_url}/#/jobs/{job.job_id}", highlight=False)
+    console.print(f"follow: motionaug logs {job.job_id} --address {address} --follow", highlight=False)
+
+
+@app.command("logs")
+def logs_command(
+    job: Annotated[str, typer.Argument(help="Job id (motionaug-<run id>) or run id.")],
+    address: Annotated[str, typer.Option(help="Dashboard URL of the cluster.")],
+    follow: Annotated[bool, typer.Option("--follow", "-f", help="Stream until the job ends.")] = False,
+) -> None:
+    """Print the job driver's log (stdout and stderr of `motionaug run` on the cluster)."""
+    from workflows.jobs import follow_logs, job_logs
+
+    if follow:
+        run_safely(lambda: follow_logs(address, job, lambda chunk: print(chunk, end="", flush=True)))
+    else:
+        print(run_safely(lambda: job_logs(address, job)), end="")
+
+
+@app.command("cancel")
+def cancel_command(
+    job: Annotated[str, typer.Argument(help="Job id (motionaug-<run id>) or run id.")],
+    address: Annotated[str, typer.Option(help="Dashboard URL of the cluster.")],
+) -> None:
+    """Stop a submitted run; finished shards stay on disk and `submit --retry` resumes it."""
+    from workflows.jobs import cancel_job, job_id_for
+
+    stopped = run_safely(lambda: cancel_job(address, job))
+    verb = "stop requested for" if stopped else "already finished:"
+    console.print(f"{verb} job {job_id_for(job)}", highlight=False)
+
+
 @app.command("export")
 def export_command(
     run: Annotated[Path, typer.Argument(help="A finished run folder.")],
     out: Annotated[Path, typer.Option(help="Output folder.")],
-    fmt: Annotated[Literal["humanml3d", "parquet"], typer.Option("--format", help="Output layout.")] = "humanml3d",
+    fmt: Annotated[Literal["humanml3d", "parquet", "bvh"], typer.Option("--format", help="Output layout.")] = "humanml3d",
     min_content_score: Annotated[float | None, typer.Option(help="Keep stylized clips scoring at least this.")] = None,
     keep_mean_std: Annotated[bool, typer.Option("--keep-mean-std", help="Keep the source Mean/Std.")] = False,
+    style: Annotated[str | None, typer.Option(help="--format bvh: only this style.")] = None,
 ) -> None:
-    """Original corpus + stylized train clips as a HumanML3D folder or one merged Parquet dataset."""
+    """Original corpus + stylized train clips as a HumanML3D folder or one merged Parquet dataset; bvh: stylized clips as BVH."""
     from augment.export import export_run
 
+    if fmt == "bvh":
+        from augment.bvh_export import export_bvh
+
+        b = run_safely(lambda: export_bvh(run, out, style))
+        console.print(f"wrote {b.files} BVH files to {b.out} ({b.with_positions} non-rigid, with position channels); "
+                      f"largest joint error {b.max_error_m * 1000:.3f} mm")
+        return
     with console.status(f"exporting {run} to {out}"):
         s = run_safely(lambda: export_run(run, out, fmt, min_content_score, keep_mean_std))
     console.print(
@@ -242,4 +319,10 @@ def main() -> None:  # pragma: no cover - console script entry
 
 
 if __name__ == "__main__":  # pragma: no cover - ``python -m workflows.cli``
-    app()
+    # Run as a script this module is ``__main__``; the package's ``app`` is the one commands register on.
+    from workflows.cli import app as registered_app
+
+    registered_app()
+else:
+    import workflows.cli_inspect  # noqa: E402,F401  (registers preview/evaluate on app)
+

@@ -1,0 +1,81 @@
+"""``motionaug preview`` and ``motionaug evaluate``: looking at and judging a run's output.
+
+Registered on the app of ``workflows.cli`` (which imports this module at its end). Thin commands:
+parse, call one library function (``augment.evaluation``, ``augment.report``), print where things went.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from augment.errors import MotionDataError
+from workflows.cli import app, console, run_safely, usage_errors
+
+
+@app.command("preview")
+def preview_command(
+    path: Annotated[Path, typer.Argument(help="A run folder, or a corpus (HumanML3D folder or Parquet).")],
+    clip: Annotated[str | None, typer.Option(help="Clip id (the source clip's id for a run).")] = None,
+    style: Annotated[str | None, typer.Option(help="Style of the run to show the clip in.")] = None,
+    out: Annotated[Path | None, typer.Option(help="Output file: .gif, .mp4 (or .png with --grid).")] = None,
+    grid: Annotated[int | None, typer.Option(min=1, help="Contact sheet of N random transfers across styles.")] = None,
+    seed: Annotated[int, typer.Option(help="Seed for --grid's choice of clips.")] = 0,
+) -> None:
+    """Animate a clip beside its stylized version (a run), or one clip of a corpus; --grid: a PNG contact sheet."""
+    from augment.evaluation import is_run_dir, preview_corpus, preview_grid, preview_transfer
+
+    with usage_errors():
+        _check_preview_args(path, clip, style, grid, is_run_dir(path))
+    with console.status("rendering preview"):
+        if grid is not None:
+            written = run_safely(lambda: preview_grid(path, grid, out, seed=seed))
+        elif is_run_dir(path):
+            written = run_safely(lambda: preview_transfer(path, clip, style, out))
+        else:
+            written = run_safely(lambda: preview_corpus(path, clip, out))
+    console.print(f"wrote {written}")
+
+
+def _check_preview_args(path: Path, clip: str | None, style: str | None, grid: int | None, is_run: bool) -> None:
+    if not path.exists():
+        raise MotionDataError(str(path), "not found")
+    if grid is not None:
+        if not is_run:
+            raise MotionDataError("--grid", f"{path} is not a run folder; a grid shows a run's transfers")
+        return
+    if clip is None:
+        raise MotionDataError("--clip", "give the id of the clip to show (or --grid N)")
+    if is_run and style is None:
+        raise MotionDataError("--style", "a run folder needs --style to pick the stylized version")
+    if not is_run and style is not None:
+        raise MotionDataError("--style", f"{path} is a corpus, not a run: it has no stylized versions")
+
+
+@app.command("evaluate")
+def evaluate_command(
+    run: Annotated[Path, typer.Argument(help="A finished run folder.")],
+    reference: Annotated[Path | None, typer.Option(help="Corpus of real labelled clips for FMD (default: the run's corpus).")] = None,
+    base_models: Annotated[Path | None, typer.Option(help="Base models with the evaluation classifiers (default: the run's).")] = None,
+) -> None:
+    """Score every stylized clip; write report.md, report.html and scores.parquet into the run folder."""
+    from augment.evaluation import evaluate_run, write_scores
+    from augment.report import SUMMARY_COLUMNS, format_value, write_report
+
+    with console.status(f"evaluating {run}"):
+        evaluation = run_safely(lambda: evaluate_run(run, reference, base_models))
+        scores = run_safely(lambda: write_scores(evaluation))
+        md, page = run_safely(lambda: write_report(evaluation))
+    shown = [c for c in SUMMARY_COLUMNS if c[0] in ("clips", "sra", "cra", "fmd", "foot_skating", "contact_agreement", "mpjpe")]
+    table = Table(title=f"run {evaluation.run_id} ({evaluation.method})")
+    for header in ("style", *[h for _, h, _ in shown]):
+        table.add_column(header, justify="left" if header == "style" else "right")
+    for summary in [*evaluation.styles, evaluation.overall]:
+        table.add_row(summary.style, *[format_value(kind, getattr(summary, attr)) for attr, _, kind in shown])
+    console.print(table)
+    for note in evaluation.notes:
+        console.print(f"[yellow]not measured:[/yellow] {note}", highlight=False)
+    console.print(f"wrote {md}, {page} and {scores}")
