@@ -1,0 +1,331 @@
+"""Cluster operation on a real two-node Ray cluster on this machine (deploy/local-cluster.sh start 1).
+
+Runs go through the Jobs API (``motionaug submit``), one worker process is SIGKILLed mid-run, and the
+cluster is torn down by killing only the sessions the script started (never ``ray stop``). The corpus is
+40 synthetic clips, two styles, the cheap ``stats`` method.
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from schemas.run_config import load_run_config
+from workflows.cli import app
+
+REPO = Path(__file__).resolve().parents[1]
+DEPLOY = REPO / "deploy"
+N_CLIPS = 40
+UNIT_SIZE = 4
+STYLES = [
+    {"name": "proud", "words": {"adjective": "proud", "adverb": "proudly", "phrases": ["in a proud way"]},
+     "examples": [{"source": "000004", "description": "a person walks proudly"}]},
+    {"name": "old", "words": {"adjective": "old", "phrases": ["like an old person"]},
+     "examples": [{"source": "000008", "description": "a person walks like an old person"}]},
+]  # fmt: skip
+TOTAL_ROWS = N_CLIPS * len(STYLES)
+TOTAL_SHARDS = N_CLIPS // UNIT_SIZE * len(STYLES)
+
+
+def config_file(tmp: Path, corpus: Path, out: Path, seed: int) -> Path:
+    data = {
+        "corpus": {"path": str(corpus)}, "styles": copy.deepcopy(STYLES), "method": {"name": "stats"},
+        "compute": {"batch_size": 2, "unit_size": UNIT_SIZE, "max_retries": 3}, "output": str(out), "seed": seed,
+    }  # fmt: skip
+    path = tmp / f"run-{seed}.yaml"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    return path
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def cluster_env(state: Path) -> dict[str, str]:
+    """Environment of local-cluster.sh: the venv's bin first (nodes and job drivers find `motionaug`)."""
+    agent = free_port()
+    while any(_taken(agent + i) for i in range(4)):
+        agent = free_port()
+    return {
+        **os.environ, "PATH": f"{Path(sys.executable).parent}:{os.environ.get('PATH', '')}", "CLUSTER_DIR": str(state),
+        "GCS_PORT": str(free_port()), "DASHBOARD_PORT": str(free_port()), "AGENT_PORT": str(agent),
+        "CPUS_PER_NODE": "1", "RAY_USAGE_STATS_ENABLED": "0",
+    }  # fmt: skip
+
+
+def _taken(port: int) -> bool:
+    with socket.socket() as sock:
+        try:
+            sock.bind(("127.0.0.1", port))
+        except OSError:
+            return True
+    return False
+
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """Head + one worker node (1 CPU each); yields the dashboard URL; stops only these processes."""
+    pytest.importorskip("ray")
+    # Not under pytest's basetemp: a concurrent pytest session may prune it while Ray's sockets live there.
+    state = Path(tempfile.mkdtemp(prefix="motionaug-cluster-"))
+    env = cluster_env(state)
+    script = str(DEPLOY / "local-cluster.sh")
+    try:
+        started = subprocess.run([script, "start", "1"], env=env, capture_output=True, text=True, timeout=150)
+        assert started.returncode == 0, started.stdout + started.stderr
+        yield f"http://127.0.0.1:{env['DASHBOARD_PORT']}"
+    finally:
+        stopped = subprocess.run([script, "stop"], env=env, capture_output=True, text=True, timeout=60)
+        assert stopped.returncode == 0, stopped.stderr
+        left = subprocess.run([script, "status"], env=env, capture_output=True, text=True, timeout=30)
+        assert "not running" in left.stdout
+        shutil.rmtree(state, ignore_errors=True)
+
+
+@pytest.fixture(scope="module")
+def corpus(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from augment.synth import generate_corpus
+
+    root = tmp_path_factory.mktemp("corpus") / "synth"
+    generate_corpus(root, N_CLIPS, seed=0)
+    return root
+
+
+def output_ids(run_dir: Path) -> list[str]:
+    files = sorted((run_dir / "shards").glob("style=*/*.parquet"))
+    return pq.read_table(files, columns=["output_id"])["output_id"].to_pylist() if files else []
+
+
+def state_client(url: str):
+    from ray.util.state.api import StateApiClient
+
+    from workflows.jobs import auth_headers
+
+    return StateApiClient(address=url, headers={"Content-Type": "application/json", **auth_headers()})
+
+
+def transfer_tasks(url: str, running_only: bool = False) -> list[dict]:
+    """Transfer task attempts on the cluster, from the state API (name, state, worker_pid, node_id, attempt)."""
+    from ray.util.state.common import ListApiOptions, StateResource
+
+    filters = [("state", "=", "RUNNING")] if running_only else []
+    options = ListApiOptions(filters=filters, detail=True, limit=10000)
+    tasks = state_client(url).list(StateResource.TASKS, options, raise_on_missing_output=False)
+    rows = [t if isinstance(t, dict) else t.__dict__ for t in tasks]
+    return [r for r in rows if r["name"].startswith("transfer[")]
+
+
+# ---- the tests -----------------------------------------------------------------------------------
+
+
+@pytest.mark.filterwarnings("ignore:ssl=None is deprecated:DeprecationWarning")  # inside Ray's log tail
+def test_submit_runs_on_two_nodes_and_a_second_submit_is_refused(cluster: str, corpus: Path, tmp_path: Path) -> None:
+    from workflows.jobs import wait_for_job
+
+    out = tmp_path / "run"
+    cfg = config_file(tmp_path, corpus, out, seed=0)
+    job_id = f"motionaug-{load_run_config(cfg).run_id()}"
+    submitted = CliRunner().invoke(app, ["submit", str(cfg), "--address", cluster])
+    assert submitted.exit_code == 0, submitted.output
+    assert job_id in submitted.output and f"{cluster}/#/jobs/{job_id}" in submitted.output
+    again = CliRunner().invoke(app, ["submit", str(cfg), "--address", cluster])
+    assert again.exit_code == 1 and "already submitted" in again.output and job_id in again.output
+    state = wait_for_job(cluster, job_id, timeout=150)
+    assert state.status == "SUCCEEDED", state.message
+    ids = output_ids(out)
+    assert len(ids) == TOTAL_ROWS == len(set(ids)) and (out / "_SUCCESS").is_file()
+
+    status = CliRunner().invoke(app, ["status", job_id, "--address", cluster])
+    assert status.exit_code == 0 and "SUCCEEDED" in status.output, status.output
+    assert f"{TOTAL_SHARDS}/{TOTAL_SHARDS}" in status.output
+    logs = CliRunner().invoke(app, ["logs", job_id, "--address", cluster])
+    assert logs.exit_code == 0 and f"rows {TOTAL_ROWS}" in logs.output, logs.output[-2000:]
+    followed = CliRunner().invoke(app, ["logs", job_id, "--address", cluster, "--follow"])
+    assert followed.exit_code == 0 and f"rows {TOTAL_ROWS}" in followed.output, followed.output[-2000:]
+    after = CliRunner().invoke(app, ["submit", str(cfg), "--address", cluster, "--retry"])
+    assert after.exit_code == 1 and "SUCCEEDED" in after.output
+
+
+PROBE = """
+import ray
+ray.init()
+
+@ray.remote(num_cpus=1)
+def where():
+    import time
+    time.sleep(1.0)
+    return ray.get_runtime_context().get_node_id()
+
+print("NODES", len(set(ray.get([where.remote(), where.remote()]))))
+"""
+
+
+def test_a_job_uses_both_nodes(cluster: str, tmp_path: Path) -> None:
+    """Two concurrent 1-CPU tasks on two 1-CPU nodes must land on different nodes."""
+    from ray.util.state.common import ListApiOptions, StateResource
+
+    from workflows.jobs import connect, wait_for_job
+
+    options = ListApiOptions(filters=[("state", "=", "ALIVE")])
+    assert len(state_client(cluster).list(StateResource.NODES, options, raise_on_missing_output=False)) == 2
+    (tmp_path / "probe.py").write_text(PROBE, encoding="utf-8")
+    client = connect(cluster)
+    job_id = client.submit_job(entrypoint="python probe.py", runtime_env={"working_dir": str(tmp_path)})
+    assert wait_for_job(cluster, job_id, timeout=90).status == "SUCCEEDED"
+    assert "NODES 2" in client.get_job_logs(job_id)
+
+
+def test_worker_sigkill_mid_run_loses_and_duplicates_nothing(cluster: str, corpus: Path, tmp_path: Path) -> None:
+    from workflows.jobs import job_state, submit_run, wait_for_job
+
+    out = tmp_path / "run"
+    job = submit_run(load_run_config(config_file(tmp_path, corpus, out, seed=1)), cluster)
+    before = {(t["task_id"], t["attempt_number"]) for t in transfer_tasks(cluster)}
+    killed: list[int] = []
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and job_state(cluster, job.job_id).status in ("PENDING", "RUNNING"):
+        new = [t for t in transfer_tasks(cluster) if (t["task_id"], t["attempt_number"]) not in before]
+        if any(t["attempt_number"] >= 1 for t in new):
+            break  # a killed task was retried
+        running = [t for t in new if t["state"] == "RUNNING" and t.get("worker_pid") and t["worker_pid"] not in killed]
+        if running and len(killed) < 4:
+            os.kill(running[0]["worker_pid"], signal.SIGKILL)  # a worker of this test's own cluster
+            killed.append(running[0]["worker_pid"])
+            time.sleep(1.0)  # task events are reported about once a second
+        time.sleep(0.05)
+    assert killed, "no running transfer task was seen to kill"
+    state = wait_for_job(cluster, job.job_id, timeout=150)
+    assert state.status == "SUCCEEDED", state.message
+    ids = output_ids(out)
+    assert len(ids) == TOTAL_ROWS and len(set(ids)) == TOTAL_ROWS
+    after = [t for t in transfer_tasks(cluster) if (t["task_id"], t["attempt_number"]) not in before]
+    retried = [t for t in after if t["attempt_number"] >= 1]
+    assert retried, f"killed workers {killed}, but no transfer task was retried"
+
+
+def test_cancel_stops_a_run_and_retry_resumes_it(cluster: str, corpus: Path, tmp_path: Path) -> None:
+    from workflows.jobs import wait_for_job
+
+    out = tmp_path / "run"
+    cfg = config_file(tmp_path, corpus, out, seed=2)
+    job_id = f"motionaug-{load_run_config(cfg).run_id()}"
+    assert CliRunner().invoke(app, ["submit", str(cfg), "--address", cluster]).exit_code == 0
+    cancelled = CliRunner().invoke(app, ["cancel", job_id, "--address", cluster])
+    assert cancelled.exit_code == 0 and "stop requested" in cancelled.output, cancelled.output
+    assert wait_for_job(cluster, job_id, timeout=60).status == "STOPPED"
+    refused = CliRunner().invoke(app, ["submit", str(cfg), "--address", cluster])
+    assert refused.exit_code == 1 and "--retry" in refused.output
+    retried = CliRunner().invoke(app, ["submit", str(cfg), "--address", cluster, "--retry"])
+    assert retried.exit_code == 0 and f"{job_id}-2" in retried.output, retried.output
+    assert wait_for_job(cluster, f"{job_id}-2", timeout=150).status == "SUCCEEDED"
+    assert sorted(output_ids(out)) == sorted(set(output_ids(out))) and len(output_ids(out)) == TOTAL_ROWS
+
+
+def test_unknown_job_and_unreachable_cluster_are_one_line_errors(cluster: str) -> None:
+    missing = CliRunner().invoke(app, ["status", "motionaug-run-000000000000", "--address", cluster])
+    assert missing.exit_code == 1 and "no such job" in missing.output
+    nowhere = CliRunner().invoke(app, ["logs", "x", "--address", f"http://127.0.0.1:{free_port()}"])
+    assert nowhere.exit_code == 1 and "cannot reach" in nowhere.output
+    lines = [line for line in nowhere.output.splitlines() if line.strip()]
+    assert len(lines) == 1, nowhere.output
+
+
+def test_wrong_token_is_refused(cluster: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("RAY_AUTH_TOKEN", "0" * 32)
+    result = CliRunner().invoke(app, ["status", "motionaug-run-000000000000", "--address", cluster])
+    assert result.exit_code == 1 and "token refused" in result.output, result.output
+
+
+def test_auth_headers_follow_ray_sources(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from workflows.jobs import auth_headers, dashboard_url, job_id_for
+
+    monkeypatch.delenv("RAY_AUTH_TOKEN", raising=False)
+    monkeypatch.delenv("RAY_AUTH_MODE", raising=False)
+    (tmp_path / "tok").write_text("abc\n")
+    monkeypatch.setenv("RAY_AUTH_TOKEN_PATH", str(tmp_path / "tok"))
+    assert auth_headers() == {"Authorization": "Bearer abc"}
+    monkeypatch.setenv("RAY_AUTH_TOKEN", "xyz")
+    assert auth_headers() == {"Authorization": "Bearer xyz"}
+    monkeypatch.setenv("RAY_AUTH_MODE", "disabled")
+    assert auth_headers() == {}
+    assert dashboard_url("head:8265/") == "http://head:8265" and job_id_for("run-ab") == "motionaug-run-ab"
+    assert job_id_for("motionaug-run-ab") == "motionaug-run-ab"
+
+
+# ---- deploy/ files ---------------------------------------------------------------------------------
+
+
+def load_yaml(name: str) -> dict:
+    data = yaml.safe_load((DEPLOY / name).read_text(encoding="utf-8"))
+    assert isinstance(data, dict), name
+    return data
+
+
+def containers(cluster_spec: dict) -> list[dict]:
+    groups = [cluster_spec["headGroupSpec"], *cluster_spec["workerGroupSpecs"]]
+    return [c for g in groups for c in g["template"]["spec"]["containers"]]
+
+
+def test_kuberay_rayjob_runs_motionaug_with_token_auth() -> None:
+    job = load_yaml("kuberay-rayjob.yaml")
+    assert (job["apiVersion"], job["kind"]) == ("ray.io/v1", "RayJob")
+    assert job["spec"]["entrypoint"].startswith("motionaug run ") and "--address auto" in job["spec"]["entrypoint"]
+    cluster = job["spec"]["rayClusterSpec"]
+    assert cluster["rayVersion"] == "2.60.0" and cluster["authOptions"]["mode"] == "token"
+    assert all(c["image"].startswith(("ghcr.io/example/motionaug:")) for c in containers(cluster))
+
+
+def test_kuberay_raycluster_has_cpu_and_gpu_groups() -> None:
+    cluster = load_yaml("kuberay-raycluster.yaml")
+    assert (cluster["apiVersion"], cluster["kind"]) == ("ray.io/v1", "RayCluster")
+    spec = cluster["spec"]
+    assert spec["rayVersion"] == "2.60.0" and spec["authOptions"]["mode"] == "token"
+    gpu = {g["groupName"]: g for g in spec["workerGroupSpecs"]}["gpu"]
+    limits = gpu["template"]["spec"]["containers"][0]["resources"]["limits"]
+    assert limits["nvidia.com/gpu"] == "1" and gpu["template"]["spec"]["containers"][0]["image"].endswith(":cuda")
+
+
+def test_ray_up_config_has_a_gpu_worker_group_and_token_mode() -> None:
+    config = load_yaml("ray-cluster.yaml")
+    types = config["available_node_types"]
+    assert config["head_node_type"] in types and "gpu_worker" in types
+    assert types["gpu_worker"]["docker"]["worker_image"].endswith(":cuda")
+    starts = config["head_start_ray_commands"] + config["worker_start_ray_commands"]
+    assert all("RAY_AUTH_MODE=token" in cmd for cmd in starts if "ray start" in cmd)
+    assert "/home/ray/.ray/auth_token" in config["file_mounts"]
+
+
+def test_dockerfiles_pin_torch_through_constraints() -> None:
+    cpu = (DEPLOY / "Dockerfile").read_text(encoding="utf-8")
+    cuda = (DEPLOY / "Dockerfile.cuda").read_text(encoding="utf-8")
+    assert "FROM python:3.11-slim" in cpu and "FROM python:3.11-slim" in cuda
+    for text in (cpu, cuda):
+        installs = [line for line in text.splitlines() if "pip install" in line and not line.startswith("#")]
+        assert installs and all("-c constraints.txt" in line for line in installs)
+    assert "whl/cpu" in cpu and "torch==2.13.0" in cpu and "torch==2.13.0+${CUDA_TAG}" in cuda
+    assert "torch==2.13.0" in (REPO / "constraints.txt").read_text(encoding="utf-8")
+
+
+def test_local_cluster_script_never_runs_a_bare_ray_stop() -> None:
+    text = (DEPLOY / "local-cluster.sh").read_text(encoding="utf-8")
+    code = [line.split("#")[0] for line in text.splitlines()]
+    assert not any("ray stop" in line or '"$RAY_BIN" stop' in line for line in code)
+    assert subprocess.run(["bash", "-n", str(DEPLOY / "local-cluster.sh")]).returncode == 0
+    usage = subprocess.run([str(DEPLOY / "local-cluster.sh"), "bogus"], capture_output=True, text=True)
+    assert usage.returncode == 1 and "usage" in usage.stderr
