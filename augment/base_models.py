@@ -56,6 +56,8 @@ class BaseModelsInfo(BaseModel):
     content_labels: list[str] = Field(default_factory=list)
     style_labels: list[str] = Field(default_factory=list)
     corpus_fingerprint: str = ""
+    config_hash: str = Field(default="", description="Hash of the PretrainConfig that made these weights.")
+    pretrain_config: dict[str, Any] = Field(default_factory=dict, description="The PretrainConfig, for the record.")
     metrics: dict[str, float] = Field(default_factory=dict, description="Held-out figures measured at pretraining.")
 
 

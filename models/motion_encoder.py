@@ -71,6 +71,18 @@ class SinusoidalPositions(nn.Module):
         return self.dropout(x + self.table[: x.shape[1]])
 
 
+class FrameEmbedding(nn.Module):
+    """Per-frame linear embedding named like MDM's ``InputProcess`` (``poseEmbedding``), so a standalone
+    encoder and one sharing the denoiser's layer have the same state-dict keys (``embed.poseEmbedding.*``)."""
+
+    def __init__(self, input_dim: int, d_model: int) -> None:
+        super().__init__()
+        self.poseEmbedding = nn.Linear(input_dim, d_model)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.poseEmbedding(x)  # (B, T, F) -> (B, T, d)
+
+
 class MotionEncoder(nn.Module):
     """``forward(x (B, T, D), mask (B, T) bool, True = real frame) -> (B, text_dim)``."""
 
@@ -81,7 +93,7 @@ class MotionEncoder(nn.Module):
         if embed_layout not in ("btd", "tbd"):
             raise ValueError(f"motion encoder: embed_layout must be 'btd' or 'tbd', got {embed_layout!r}")
         self.config = config
-        self.embed = embed if embed is not None else nn.Linear(config.input_dim, config.d_model)
+        self.embed = embed if embed is not None else FrameEmbedding(config.input_dim, config.d_model)
         self.embed_layout = embed_layout
         self.pool_token = nn.Parameter(torch.randn(1, 1, config.d_model) * 0.02)
         self.positions = SinusoidalPositions(config.d_model, config.max_len + 1, config.dropout)

@@ -1,0 +1,338 @@
+"""On-the-fly style transfer (Hu et al. 2024): pairs, fine-tuning, transfer, LoRA artefacts, example validation.
+
+Everything runs on tiny random base models and a handful of short synthetic clips so the file stays fast on
+2 shared cores. Captions are embedded by a small hashing bag-of-words encoder (a real ``TextEncoder``; MiniLM
+would cost seconds to load and is tested elsewhere).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from augment.base_models import BaseModels, BaseModelsInfo, config_dict
+from augment.clip import MotionClip
+from augment.corpus.rejects import Reject
+from augment.errors import MotionDataError
+from augment.features import compute_mean_std
+from augment.methods.base import ARTIFACT_JSON, ARTIFACT_WEIGHTS, TransferOutput
+from augment.methods.onthefly import (
+    ContentPool,
+    MotionBatch,
+    OnTheFlyMethod,
+    OnTheFlyParams,
+    finetune,
+    make_pairs,
+    neutral_twins,
+    parse_params,
+    trajectory_channels,
+)
+from augment.style_examples import load_style_examples
+from augment.synth import sample_spec
+from augment.synth.corpus import spec_to_clip
+from models.mdm import MDM, MDMConfig
+from models.motion_encoder import MotionEncoder, MotionEncoderConfig
+from schemas.styles import StyleExample, StyleSpec, StyleWords
+
+torch.set_num_threads(1)
+FRAMES = 40
+FIXTURES = Path(__file__).resolve().parent / "fixtures"
+PROUD = StyleWords(adjective="proud", adverb="proudly", phrases=("in a proud way", "with pride"))
+
+
+def shared_data() -> Path:
+    """../shared/data beside the checkout; skip when absent outside CI, fail in CI."""
+    path = Path(__file__).resolve().parents[2] / "shared" / "data"
+    if not path.exists():
+        if os.environ.get("CI", "").lower() == "true":
+            pytest.fail(f"{path} is absent (the project's ../shared/data)")
+        pytest.skip(f"{path} is absent (the project's ../shared/data)")
+    return path
+
+
+class HashTextEncoder:
+    """Bag of hashed words -> unit vector: deterministic, instant, and different captions differ."""
+
+    def __init__(self, dim: int = 384) -> None:
+        self._dim = dim
+
+    @property
+    def dim(self) -> int:
+        return self._dim
+
+    def encode(self, texts: list[str]) -> torch.Tensor:
+        out = torch.zeros(len(texts), self._dim)
+        for i, text in enumerate(texts):
+            for word in text.lower().replace(".", " ").split():
+                out[i, int(hashlib.md5(word.encode()).hexdigest(), 16) % self._dim] += 1.0
+        return torch.nn.functional.normalize(out, dim=-1)
+
+
+def synth_clip(content: str, style: str, seed: int, clip_id: str, frames: int = FRAMES) -> MotionClip:
+    spec = sample_spec(np.random.default_rng(seed), content, style, seed=seed)
+    clip = spec_to_clip(spec, clip_id)
+    clip.motion = clip.motion[:frames].copy()
+    return clip
+
+
+@pytest.fixture(scope="module")
+def clips() -> dict[str, MotionClip]:
+    made = {
+        "proud_walk": synth_clip("walk", "proud", 1, "ex0"),
+        "walk": synth_clip("walk", "neutral", 2, "c0"),
+        "kick": synth_clip("kick", "neutral", 3, "c1", frames=32),
+        "squat": synth_clip("squat", "neutral", 4, "c2", frames=36),
+        "angry_run": synth_clip("run", "angry", 5, "c3"),
+    }
+    made["proud_walk_neutral"] = synth_clip("walk", "neutral", 1, "ex0n")  # same spec, neutral style
+    return made
+
+
+@pytest.fixture(scope="module")
+def base_dir(tmp_path_factory: pytest.TempPathFactory, clips: dict[str, MotionClip]) -> Path:
+    """Tiny random base models whose Mean/Std come from the test clips."""
+    torch.manual_seed(0)
+    prior_cfg = MDMConfig.named("tiny", dropout=0.0)
+    enc_cfg = MotionEncoderConfig.named("tiny")
+    info = BaseModelsInfo(size="tiny", max_frames=196, prior=config_dict(prior_cfg), motion_encoder=config_dict(enc_cfg))
+    base = BaseModels(
+        info=info, prior=MDM(prior_cfg), motion_encoder=MotionEncoder(enc_cfg),
+        normalizer=compute_mean_std([c.motion for c in clips.values()]),
+    )  # fmt: skip
+    return base.save(tmp_path_factory.mktemp("base"))
+
+
+@pytest.fixture(scope="module")
+def base(base_dir: Path) -> BaseModels:
+    return BaseModels.load(base_dir, text_encoder=HashTextEncoder())
+
+
+def proud_spec(source: str = "ex0", description: str = "a person walks forward proudly") -> StyleSpec:
+    return StyleSpec(name="proud", words=PROUD, examples=[StyleExample(source=source, description=description)])
+
+
+FAST = {"pair_steps": 20, "ddim_steps": 20, "batch_size": 4, "lr": 1e-3}
+
+
+# ---- parameters ---------------------------------------------------------------------------------------------
+
+
+def test_params_reject_bad_values_naming_the_field() -> None:
+    assert parse_params().transfer_noise_step == 300
+    with pytest.raises(MotionDataError, match="transfer_noise_step"):
+        parse_params(transfer_noise_step=0)
+    with pytest.raises(MotionDataError, match="pair_noise_step"):
+        parse_params(pair_noise_step=1001)
+    with pytest.raises(MotionDataError, match="lerning_rate"):
+        parse_params({"lerning_rate": 0.1})
+    with pytest.raises(MotionDataError, match="lambda_rec"):
+        parse_params(lambda_rec=0.0, lambda_s=0.0)
+    with pytest.raises(MotionDataError, match="batch_size"):
+        OnTheFlyMethod({"batch_size": 0})
+
+
+def test_trajectory_channels_are_the_root_blocks() -> None:
+    assert trajectory_channels("horizontal") == [0, 1, 2]
+    assert trajectory_channels("root") == [0, 1, 2, 3]
+
+
+# ---- pair generation ----------------------------------------------------------------------------------------
+
+
+def test_neutral_twin_keeps_trajectory_channels_exactly(base: BaseModels, clips: dict[str, MotionClip]) -> None:
+    params = parse_params(FAST, trajectory="root")
+    batch = MotionBatch.from_motions([clips["proud_walk"].motion, clips["kick"].motion], base)
+    embed = base.text_encoder.encode(["a person walks forward", "a person kicks"])
+    twins = neutral_twins(base.prior, batch, embed, params, torch.Generator().manual_seed(0))
+    channels = trajectory_channels("root")
+    for i, n in enumerate(batch.lengths):
+        assert torch.equal(twins[i, :n, channels], batch.x[i, :n, channels])
+        other = [c for c in range(twins.shape[2]) if c not in channels]
+        assert not torch.allclose(twins[i, :n, other], batch.x[i, :n, other], atol=1e-2)  # the rest was regenerated
+    assert torch.isfinite(twins[0]).all()
+
+
+# ---- fine-tuning ----------------------------------------------------------------------------------------------
+
+
+def test_finetune_lowers_reconstruction_loss(base: BaseModels, clips: dict[str, MotionClip]) -> None:
+    params = parse_params(FAST, lambda_s=0.0, max_steps=40, lr=2e-3)
+    generator = torch.Generator().manual_seed(0)
+    pairs = make_pairs(base, [clips["proud_walk"]], params, generator)
+    calls: list[tuple[int, int]] = []
+    fit = finetune(base, pairs, ContentPool([], []), params, progress=lambda i, n, m: calls.append((i, n)))
+    losses = [r["l_rec"] for r in fit.curve]
+    assert len(losses) == 40 and calls[0] == (1, 40) and calls[-1] == (40, 40)
+    assert np.mean(losses[-5:]) < 0.5 * np.mean(losses[:5])
+    prior_weight = base.prior.output_process.poseFinal.weight
+    assert not torch.equal(fit.model.output_process.poseFinal.weight, prior_weight)  # a copy was trained
+    assert not prior_weight.requires_grad  # the prior itself stays frozen and untouched
+
+
+def test_transfer_moves_content_toward_the_example(base: BaseModels, clips: dict[str, MotionClip]) -> None:
+    """After learning one proud walk, a neutral walk's pose statistics come closer to the example's."""
+    example, content = clips["proud_walk"], clips["proud_walk_neutral"]
+    method = OnTheFlyMethod(parse_params(FAST, lambda_s=0.0, max_steps=60, lr=2e-3), text_encoder=HashTextEncoder())
+    model, fit, _, _ = method.fit(proud_spec(), [example], base, corpus=[])
+    (out,) = model.transfer([content])
+    assert isinstance(out, TransferOutput)
+    pose = slice(4, 263)  # everything but the trajectory
+
+    def distance(motion: np.ndarray) -> float:
+        a = base.normalizer.normalize(motion)[:, pose].mean(axis=0)
+        b = base.normalizer.normalize(example.motion)[:, pose].mean(axis=0)
+        return float(np.linalg.norm(a - b))
+
+    assert distance(out.motion) < 0.7 * distance(content.motion)
+    np.testing.assert_array_equal(out.motion[:, :3], content.motion[:, :3])  # the content's path is kept
+    assert {"style_score", "content_score", "foot_skating"} <= set(out.scores)
+    assert any("proud" in c.text for c in out.captions)
+
+
+def test_semantic_loss_runs_on_the_corpus_and_is_recorded(base: BaseModels, clips: dict[str, MotionClip]) -> None:
+    corpus = [clips["walk"], clips["kick"], clips["squat"], clips["angry_run"]]
+    method = OnTheFlyMethod(parse_params(FAST, batch_size=2, styled_corpus="neutralise"), text_encoder=HashTextEncoder())
+    model, fit, pool, skipped = method.fit(proud_spec(), [clips["proud_walk"]], base, corpus)
+    assert len(fit.curve) == 2  # one pass over 4 clips in batches of 2
+    assert len(pool) == 4 and skipped == 0  # the angry run was neutralised, not dropped
+    assert all(0.0 < r["l_s"] < 2.0 for r in fit.curve)
+    assert all(any("proud" in c for c in caps) for caps in pool.captions)
+    skipping = OnTheFlyMethod(parse_params(FAST, batch_size=2, max_steps=1), text_encoder=HashTextEncoder())
+    _, _, pool, skipped = skipping.fit(proud_spec(), [clips["proud_walk"]], base, corpus)
+    assert len(pool) == 3 and skipped == 1  # default: styled corpus clips stay out of the pool
+
+
+# ---- transfer batches, artefacts ---------------------------------------------------------------------------
+
+
+def test_batch_with_bad_clips_rejects_only_them(base: BaseModels, clips: dict[str, MotionClip]) -> None:
+    method = OnTheFlyMethod(parse_params(FAST, lambda_s=0.0, max_steps=1), text_encoder=HashTextEncoder())
+    model, _, _, _ = method.fit(proud_spec(), [clips["proud_walk"]], base, corpus=[])
+    nan = clips["walk"].motion.copy()
+    nan[5, 10] = np.nan
+    batch = [
+        clips["walk"],
+        MotionClip(id="bad-nan", motion=nan, captions=clips["walk"].captions),
+        clips["kick"],
+        MotionClip(id="bad-width", motion=np.zeros((30, 251), np.float32), captions=[]),
+        MotionClip(id="bad-short", motion=clips["walk"].motion[:5], captions=[]),
+        clips["angry_run"],
+    ]
+    results = model.transfer(batch, seed=3)
+    assert [type(r) for r in results] == [TransferOutput, Reject, TransferOutput, Reject, Reject, TransferOutput]
+    assert [r.id for r in results if isinstance(r, Reject)] == ["bad-nan", "bad-width", "bad-short"]
+    assert "NaN" in results[1].reason and "width" in results[3].reason and "short" in results[4].reason
+    outputs = [r for r in results if isinstance(r, TransferOutput)]
+    assert [o.motion.shape for o in outputs] == [(FRAMES, 263), (32, 263), (FRAMES, 263)]
+    assert all(np.isfinite(o.motion).all() for o in outputs)
+    alone = model.transfer([clips["kick"]], seed=3)[0]  # per-clip noise: batch mates do not change a clip
+    np.testing.assert_allclose(alone.motion, outputs[1].motion, atol=1e-4)
+
+
+def test_lora_artifact_round_trip_gives_identical_transfers(
+    base: BaseModels, base_dir: Path, clips: dict[str, MotionClip], tmp_path: Path
+) -> None:
+    params = parse_params(FAST, lambda_s=0.0, max_steps=4, lora_rank=2)
+    method = OnTheFlyMethod(params, text_encoder=HashTextEncoder())
+    model, fit, pool, skipped = method.fit(proud_spec(), [clips["proud_walk"]], base, corpus=[])
+    out_dir = method.save(tmp_path / "style=proud", base_dir, model, fit, pool, skipped)
+    info = json.loads((out_dir / ARTIFACT_JSON).read_text())
+    assert info["method"] == "onthefly" and info["weights"] == "lora"
+    assert info["weights_bytes"] <= 0.05 * info["full_model_bytes"]
+    assert (out_dir / ARTIFACT_WEIGHTS).stat().st_size <= 0.05 * info["full_model_bytes"] + 4096
+    assert len(info["loss_curve"]) == 4 and "finetune_s" in info["timings"]
+    loaded = method.load(out_dir, base_dir)
+    content = [clips["walk"], clips["kick"]]
+    before, after = model.transfer(content, seed=1), loaded.transfer(content, seed=1)
+    for a, b in zip(before, after):
+        np.testing.assert_array_equal(a.motion, b.motion)
+    merged = method.load(out_dir, base_dir, merge=True).transfer(content, seed=1)
+    for a, b in zip(before, merged):
+        np.testing.assert_allclose(a.motion, b.motion, atol=1e-3)
+
+
+def test_full_finetune_artifact_and_base_mismatch(
+    base: BaseModels, base_dir: Path, clips: dict[str, MotionClip], tmp_path: Path
+) -> None:
+    method = OnTheFlyMethod(parse_params(FAST, lambda_s=0.0, max_steps=2), text_encoder=HashTextEncoder())
+    lookup = {"ex0": clips["proud_walk"]}
+    examples = load_style_examples(proud_spec(), lookup)
+    out_dir = method.prepare(proud_spec(), examples, base_dir, [], tmp_path / "full")
+    info = json.loads((out_dir / ARTIFACT_JSON).read_text())
+    assert info["weights"] == "full" and info["weights_bytes"] == info["full_model_bytes"]
+    (out,) = method.load(out_dir, base_dir).transfer([clips["walk"]])
+    assert out.motion.shape == (FRAMES, 263)
+    (fast,) = method.load(out_dir, base_dir, bf16=True).transfer([clips["walk"]])  # bf16 autocast serving
+    assert np.isfinite(fast.motion).all() and not np.array_equal(fast.motion, out.motion)
+    np.testing.assert_array_equal(fast.motion[:, :3], clips["walk"].motion[:, :3])
+    other = tmp_path / "other-base"
+    other.mkdir()
+    for f in base_dir.iterdir():
+        (other / f.name).write_bytes(f.read_bytes())
+    torch.manual_seed(9)
+    from augment.base_models import save_module
+
+    save_module(MDM(MDMConfig.named("tiny", dropout=0.0)), other / "prior.safetensors")
+    with pytest.raises(MotionDataError, match="tuned from base models"):
+        method.load(out_dir, other)
+
+
+# ---- style examples -------------------------------------------------------------------------------------------
+
+
+def _spec(source: str, description: str = "a person walks proudly", joint_map: str | None = None) -> StyleSpec:
+    example = StyleExample(source=source, description=description, joint_map=joint_map)
+    return StyleSpec(name="proud", words=PROUD, examples=[example])
+
+
+def test_style_examples_load_from_clip_id_and_npy(tmp_path: Path, clips: dict[str, MotionClip]) -> None:
+    np.save(tmp_path / "ex.npy", clips["proud_walk"].motion)
+    spec = StyleSpec(name="proud", words=PROUD, examples=[
+        StyleExample(source="ex0", description="a man walks with pride"),
+        StyleExample(source="ex.npy", description="a proud person walks"),
+    ])  # fmt: skip
+    loaded = load_style_examples(spec, {"ex0": clips["proud_walk"]}.get, root=tmp_path)
+    assert [c.motion.shape for c in loaded] == [(FRAMES, 263), (FRAMES, 263)]
+    assert loaded[0].captions[0].text == "a man walks with pride" and loaded[1].style == "proud"
+
+
+def test_style_examples_load_a_bvh() -> None:
+    bvh = next((FIXTURES / "bvh" / "dataset-1" / "data").glob("*walk*.bvh"))
+    (clip,) = load_style_examples(_spec(str(bvh)))
+    assert clip.motion.shape[1] == 263 and clip.n_frames >= 20 and np.isfinite(clip.motion).all()
+
+
+@pytest.mark.parametrize(
+    ("make", "description", "reason"),
+    [
+        (lambda d: np.zeros((10, 263), np.float32), "a person walks proudly", "too short"),
+        (lambda d: np.full((30, 263), np.nan, np.float32), "a person walks proudly", "NaN"),
+        (lambda d: np.zeros((30, 251), np.float32), "a person walks proudly", "width 251"),
+        (lambda d: np.zeros((30, 263), np.float32), "a person walks", "names no style word"),
+    ],
+)
+def test_style_example_errors_name_the_example(tmp_path: Path, make, description: str, reason: str) -> None:
+    np.save(tmp_path / "bad.npy", make(None))
+    with pytest.raises(MotionDataError, match=reason) as err:
+        load_style_examples(_spec("bad.npy", description), root=tmp_path)
+    assert "example 0 (bad.npy)" in err.value.source
+
+
+def test_style_example_unknown_id_and_foreign_bvh(tmp_path: Path) -> None:
+    with pytest.raises(MotionDataError, match="unknown clip id"):
+        load_style_examples(_spec("000123"), {})
+    foreign = tmp_path / "robot.bvh"
+    foreign.write_text(
+        "HIERARCHY\nROOT Base\n{\n OFFSET 0 0 0\n CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation\n"
+        " JOINT Arm\n {\n  OFFSET 0 10 0\n  CHANNELS 3 Zrotation Xrotation Yrotation\n  End Site\n  {\n   OFFSET 0 5 0\n  }\n }\n}\n"
+        "MOTION\nFrames: 2\nFrame Time: 0.0333333\n0 0 0 0 0 0 0 0 0\n0 0 0 0 0 0 0 0 0\n"
+    )
+    with pytest.raises(MotionDataError, match="no joint map") as err:
+        load_style_examples(_spec(str(foreign)))
+    assert "robot.bvh" in err.value.source
