@@ -24,7 +24,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from safetensors.torch import load_file, save_file
 from torch import nn
 
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.features import Normalizer
 from augment.io import atomic_path, atomic_write_text
 from models.evaluators import ClassifierConfig, MotionClassifier

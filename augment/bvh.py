@@ -27,7 +27,7 @@ from typing import Sequence
 
 import numpy as np
 
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from schemas.skeleton import T2M, Skeleton
 
 _AXIS = {"X": 0, "Y": 1, "Z": 2}

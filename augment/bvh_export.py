@@ -19,7 +19,7 @@ import numpy as np
 
 from augment.bvh import joints_to_bvh, read_bvh, write_bvh
 from augment.corpus.humanml3d import check_id
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.evaluation import read_run
 from augment.rendering import features_to_joints
 from augment.shards import iter_shard_rows, row_motion

@@ -20,7 +20,7 @@ from dataclasses import dataclass, replace
 from typing import Protocol
 
 from augment.corpus.tokens import parse_token
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.synth.styles import STYLE_WORDS
 from schemas.captions import Caption
 

@@ -23,7 +23,7 @@ from pydantic import BaseModel, ConfigDict
 from torch import nn
 
 from augment.base_models import load_module, save_module
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.io import atomic_path, atomic_write_text
 
 LATEST = "latest.json"

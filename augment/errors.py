@@ -1,15 +1,5 @@
-"""Typed errors for bad input: one line naming the thing and the reason."""
+"""Kept for imports written before the error moved to schemas/ (the lowest layer, so models/ can raise it)."""
 
-from __future__ import annotations
+from schemas.errors import MotionDataError
 
-
-class MotionDataError(ValueError):
-    """A clip, file or config that cannot be used, with where it came from and why.
-
-    ``str(err)`` is the one line shown to users: ``<source>: <reason>``.
-    """
-
-    def __init__(self, source: str, reason: str) -> None:
-        self.source = str(source)
-        self.reason = reason
-        super().__init__(f"{self.source}: {reason}")
+__all__ = ["MotionDataError"]

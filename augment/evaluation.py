@@ -37,7 +37,7 @@ from augment.base_models import BASE_JSON, CONTENT_CLASSIFIER, STYLE_CLASSIFIER,
 from augment.clip import MotionClip
 from augment.corpus import HumanML3DReader, detect_format, open_corpus
 from augment.corpus.humanml3d import check_id
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.evaluation_inputs import pad_batch
 from augment.io import atomic_path
 from augment.metrics import (

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from schemas.skeleton import Skeleton
 
 

@@ -11,7 +11,7 @@ from collections.abc import Iterable, Iterator
 import torch
 import torch.nn.functional as F
 
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.metrics import recognition_accuracy
 from models.evaluators import MotionClassifier
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from augment.clip import MotionClip
 from augment.corpus import HumanML3DReader, ParquetCorpusWriter, detect_format, open_corpus, write_humanml3d
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.features import Normalizer, compute_mean_std
 from augment.io import atomic_write_text
 from augment.shards import iter_shard_rows, row_captions, row_motion

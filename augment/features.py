@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.io import atomic_save_npy
 from augment.kinematics import (
     forward_kinematics_cont6d,

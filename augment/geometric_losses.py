@@ -12,7 +12,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.features import feature_slices, recover_from_ric
 from schemas.skeleton import T2M, Skeleton
 

@@ -13,7 +13,7 @@ import numpy as np
 import torch
 from scipy import linalg
 
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from schemas.skeleton import Skeleton
 
 ArrayLike = np.ndarray | torch.Tensor

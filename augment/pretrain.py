@@ -34,7 +34,7 @@ from augment.base_models import BASE_JSON, BaseModels, BaseModelsInfo, config_di
 from augment.checkpoints import StageCheckpoint, load_checkpoint, read_record, save_checkpoint, step_folder
 from augment.corpus.humanml3d import HumanML3DReader
 from augment.diffusion import NoiseSchedule, masked_mse, q_sample, sample_timesteps
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.evaluation_inputs import features_to_joints, pad_batch
 from augment.evaluator_training import classifier_accuracy, fit_classifier
 from augment.features import Normalizer, compute_mean_std

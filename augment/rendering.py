@@ -35,7 +35,7 @@ from matplotlib.patches import Rectangle
 from PIL import Image
 
 from augment.clip import MotionClip
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.features import recover_from_ric
 from augment.io import atomic_path
 from schemas.captions import Caption

@@ -40,7 +40,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from augment.bvh import BvhMotion, read_bvh
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from schemas.skeleton import get_skeleton
 
 UpAxis = Literal["+x", "-x", "+y", "-y", "+z", "-z"]

@@ -17,7 +17,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.io import atomic_path, atomic_write_text
 from augment.methods.base import TransferOutput
 from schemas.captions import Caption

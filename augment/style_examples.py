@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from augment.clip import MotionClip
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from schemas.captions import Caption
 from schemas.skeleton import T2M
 from schemas.styles import StyleExample, StyleSpec, StyleWords

@@ -19,7 +19,7 @@ from torch import Tensor
 
 from augment.clip import MotionClip
 from augment.corpus.humanml3d import HumanML3DReader
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.evaluation_inputs import pad_batch
 from augment.features import Normalizer
 from models.text_encoder import TextEncoder

@@ -25,7 +25,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 from torch.nn.utils import parametrize
 
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 
 LORA_PREFIX = "lora_"  # every adapter tensor's own name starts with this
 DEFAULT_TARGETS = ("self_attn", "linear1", "linear2")

@@ -15,7 +15,7 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 
 
 @dataclass(frozen=True)

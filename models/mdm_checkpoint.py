@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from models.mdm import MDM
 
 SKIPPED_PREFIXES = ("clip_model.",)

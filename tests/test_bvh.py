@@ -21,7 +21,7 @@ from augment.bvh import (
     read_bvh,
     write_bvh,
 )
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.retarget import (
     BANDAI_TO_T2M,
     JointMap,

@@ -18,7 +18,7 @@ from augment.caption_revision import (
     variant_kinds,
 )
 from augment.corpus.tokens import parse_caption_line, parse_token
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.synth.styles import STYLE_WORDS
 from schemas.captions import Caption
 from schemas.styles import StyleWords

@@ -13,7 +13,7 @@ import pytest
 
 from augment.clip import MotionClip
 from augment.corpus.humanml3d import HumanML3DReader, span_id, write_humanml3d
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from conftest import FIXTURES, require_shared
 from schemas.captions import Caption
 

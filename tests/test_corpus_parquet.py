@@ -23,7 +23,7 @@ from augment.corpus import (
     table_to_clips,
     write_humanml3d,
 )
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from schemas.captions import Caption
 from schemas.corpus import CORPUS_SCHEMA_VERSION, corpus_schema
 

@@ -16,7 +16,7 @@ from augment.corpus.tokens import (
     parse_caption_line,
     parse_tokens,
 )
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.io import atomic_open, atomic_write_text
 from schemas.captions import Caption
 

@@ -26,7 +26,7 @@ from augment.diffusion import (
     space_timesteps,
     start_step_for,
 )
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 
 B, T, D = 2, 6, 5
 

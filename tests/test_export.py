@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from augment.corpus import HumanML3DReader, read_parquet_corpus
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.export import export_run
 from schemas.run_config import load_run_config
 

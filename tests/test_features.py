@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.features import (
     FEATURE_BLOCKS,
     Normalizer,

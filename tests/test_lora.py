@@ -9,7 +9,7 @@ import torch
 from safetensors.torch import load_file, save_file
 from torch import Tensor, nn
 
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from models.lora import (
     LoRALinear,
     apply_lora,

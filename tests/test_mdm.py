@@ -10,7 +10,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from augment.diffusion import NoiseSchedule, bind_model, ddim_sample, x0_training_loss
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from models.mdm import MDM, MDMConfig
 from models.mdm_checkpoint import load_official_mdm_state_dict
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.metrics import (
     diversity,
     foot_contact_accuracy,

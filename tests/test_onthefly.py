@@ -19,7 +19,7 @@ import torch
 from augment.base_models import BaseModels, BaseModelsInfo, config_dict
 from augment.clip import MotionClip
 from augment.corpus.rejects import Reject
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.features import compute_mean_std
 from augment.methods.base import ARTIFACT_JSON, ARTIFACT_WEIGHTS, TransferOutput
 from augment.methods.onthefly import (

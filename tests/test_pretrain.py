@@ -13,7 +13,7 @@ from pydantic import ValidationError
 from safetensors.torch import load_file
 
 from augment.base_models import BaseModels, BaseModelsInfo
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.features import Normalizer, feature_slices
 from augment.geometric_losses import foot_contact_loss, geometric_losses, joint_position_loss, joint_velocity_loss
 from augment.pretrain import PretrainConfig, corpus_fingerprint, ensure_base_models, pretrain

@@ -13,7 +13,7 @@ import torch
 from PIL import Image
 
 from augment.clip import MotionClip
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.rendering import (
     STYLIZED_COLOR,
     Camera,

@@ -12,7 +12,7 @@ import torch
 from pydantic import ValidationError
 
 from augment.corpus.tokens import UPOS_TAGS
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.synth import CONTENTS, STYLE_WORDS, STYLES, ClipSpec, render, sample_spec
 from augment.synth.animator import BONE_LENGTHS, FOOT_JOINTS, PARENTS
 from augment.synth.captions import LEXICON, make_captions

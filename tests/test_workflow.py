@@ -210,14 +210,6 @@ def test_config_errors_exit_2_with_one_line(change, expected: str, corpus: Path,
 
 
 def test_diffusion_k_greater_than_t_is_a_config_error(corpus: Path, tmp_path: Path) -> None:
-    from augment.methods.registry import method_class
-
-    try:
-        cls = method_class("onthefly")
-    except Exception as err:  # noqa: BLE001 - the diffusion method lands separately
-        pytest.skip(f"onthefly method not available yet: {err}")
-    if getattr(cls, "validate_params", None) is None:
-        pytest.skip("onthefly has no validate_params yet")
     data = {**config_dict(corpus, tmp_path / "run"), "method": {"name": "onthefly", "params": {"transfer_noise_step": 5000}}}
     result = CliRunner().invoke(app, ["run", str(write_config(tmp_path / "c.yaml", data))])
     assert result.exit_code == 2 and "method.params" in result.output
@@ -240,7 +232,7 @@ def test_run_id_ignores_where_but_not_what(corpus: Path, tmp_path: Path) -> None
 
 
 def test_force_starts_over_and_foreign_folders_are_left_alone(corpus: Path, tmp_path: Path) -> None:
-    from augment.errors import MotionDataError
+    from schemas.errors import MotionDataError
     from workflows.pipeline import write_resolved_config
     from workflows.ray_executor import prepare_run_dir
 

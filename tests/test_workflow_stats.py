@@ -9,7 +9,7 @@ import pytest
 
 from augment.clip import MotionClip
 from augment.corpus.rejects import Reject
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.methods.base import TransferOutput
 from augment.methods.registry import create_method, known_methods, method_class, needs_base_models, validate_method_params
 from augment.methods.stats_baseline import StatsBaselineMethod, pose_channels

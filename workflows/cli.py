@@ -24,7 +24,7 @@ from rich.progress import (
 )
 from rich.table import Table
 
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 
 if TYPE_CHECKING:
     from schemas.run_config import RunConfig
@@ -133,6 +133,38 @@ def demo(
     corpus = out / "corpus"
     corpus_synth(out=corpus, clips=clips, seed=0)
     corpus_inspect(corpus)
+
+
+@app.command()
+def pretrain(
+    corpus: Annotated[Path, typer.Option(help="Training corpus (HumanML3D folder with Mean/Std).")],
+    out: Annotated[Path, typer.Option(help="Base-models folder to write (resumes from its checkpoints).")],
+    size: Annotated[str, typer.Option(help="Model size: tiny, small or paper.")] = "small",
+    seed: Annotated[int, typer.Option(help="Training seed.")] = 0,
+) -> None:
+    """Train the base models: the T2M diffusion prior, the motion encoder and the evaluators."""
+    from augment.pretrain import PretrainConfig, ensure_base_models
+
+    config = run_safely(lambda: PretrainConfig.for_size(size, seed=seed))
+    columns = (TextColumn("{task.description:>15}"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[loss]}"),
+               TimeElapsedColumn(), TimeRemainingColumn())  # fmt: skip
+    with Progress(*columns, console=console) as bars:
+        tasks: dict[str, TaskID] = {}
+
+        def progress(stage: str, step: int, total: int, metrics: dict[str, float]) -> None:
+            if stage not in tasks:
+                tasks[stage] = bars.add_task(stage, total=total, loss="")
+            loss = next((f"{k} {v:.4f}" for k, v in metrics.items() if "loss" in k), "")
+            bars.update(tasks[stage], completed=step, total=total, loss=loss)
+
+        folder = run_safely(lambda: ensure_base_models(corpus, out, size, seed, progress=progress, config=config))
+    from augment.base_models import BaseModels
+
+    info = BaseModels.load(folder).info
+    table = Table(title=f"base models in {folder}", show_header=False)
+    for key, value in sorted(info.metrics.items()):
+        table.add_row(key, f"{value:.4f}")
+    console.print(table)
 
 
 class _Bars:

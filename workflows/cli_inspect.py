@@ -12,7 +12,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from workflows.cli import app, console, run_safely, usage_errors
 
 

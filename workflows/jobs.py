@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from schemas.run_config import RunConfig
 
 if TYPE_CHECKING:

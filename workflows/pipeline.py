@@ -32,7 +32,7 @@ import pyarrow.parquet as pq
 from augment.clip import MotionClip
 from augment.corpus import HumanML3DReader, Reject, detect_format, open_corpus, write_rejects
 from augment.corpus.parquet import parquet_files, table_to_clips
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.export import split_of_ids
 from augment.methods.base import StyleModel, TransferOutput
 from augment.methods.registry import create_method, needs_base_models, validate_method_params

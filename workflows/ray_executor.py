@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.shards import sweep_temporaries
 from schemas.run_config import ComputeConfig, RunConfig
 from schemas.shards import ArtifactMarker, Manifest, Plan, PlanUnit, RunLayout, ShardMarker, StageTiming

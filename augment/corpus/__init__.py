@@ -22,7 +22,7 @@ from augment.corpus.parquet import (
     table_to_clips,
 )
 from augment.corpus.rejects import Reject, read_rejects, write_rejects
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from schemas.corpus import CorpusInfo
 
 __all__ = [

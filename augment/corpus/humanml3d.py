@@ -24,7 +24,7 @@ import numpy as np
 from augment.clip import MotionClip
 from augment.corpus.rejects import Reject
 from augment.corpus.tokens import format_caption_line, parse_caption_line
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.io import atomic_open, atomic_save_npy, atomic_write_text
 from schemas.captions import Caption
 

@@ -19,7 +19,7 @@ from augment.corpus import REJECTS_FILE
 from augment.corpus.humanml3d import write_humanml3d
 from augment.corpus.parquet import ParquetCorpusWriter
 from augment.corpus.rejects import Reject, write_rejects
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.features import extract_features
 from augment.retarget import load_bvh_as_t2m_joints, labels_from_bandai
 from schemas.captions import Caption

@@ -17,7 +17,7 @@ import pyarrow.parquet as pq
 
 from augment.clip import MotionClip
 from augment.corpus.humanml3d import check_motion
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.io import temp_path_for
 from schemas.captions import Caption
 from schemas.corpus import (

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict
 
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.io import atomic_open
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 import re
 
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from schemas.captions import Caption
 
 UPOS_TAGS = frozenset(

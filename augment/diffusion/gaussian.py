@@ -13,7 +13,7 @@ import torch
 from torch import Tensor
 
 from augment.diffusion.schedule import NoiseSchedule, extract
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 
 
 class DenoiseFn(Protocol):

@@ -21,7 +21,7 @@ from torch import Tensor, nn
 
 from augment.diffusion.gaussian import DenoiseFn, predict_eps_from_x0, q_posterior_mean_variance, q_sample
 from augment.diffusion.schedule import NoiseSchedule, extract
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 
 
 @dataclass(frozen=True)

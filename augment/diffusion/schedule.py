@@ -12,7 +12,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 
 NUM_TRAIN_TIMESTEPS = 1000
 

@@ -48,7 +48,7 @@ from augment.diffusion import (
     start_step_for,
 )
 from augment.diffusion.schedule import NUM_TRAIN_TIMESTEPS
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.evaluation_inputs import features_to_joints, pad_batch
 from augment.features import feature_slices
 from augment.io import atomic_path, atomic_write_text
@@ -657,6 +657,12 @@ class OnTheFlyMethod(StyleTransferMethod):
     """``prepare``: pair generation + fine-tuning -> artefact; ``load``: artefact -> ``OnTheFlyModel``."""
 
     name: ClassVar[str] = METHOD_NAME
+    needs_base_models: ClassVar[bool] = True
+
+    @classmethod
+    def validate_params(cls, params: dict[str, Any]) -> dict[str, Any]:
+        """The registry's hook: a bad parameter is a config error before the run starts."""
+        return parse_params(params).model_dump()
 
     def __init__(self, params: OnTheFlyParams | dict[str, Any] | None = None, text_encoder: TextEncoder | None = None) -> None:
         self.params = params if isinstance(params, OnTheFlyParams) else parse_params(params)

@@ -10,7 +10,7 @@ import importlib
 from types import MappingProxyType
 from typing import Any
 
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.methods.base import StyleTransferMethod
 
 METHODS = MappingProxyType(

@@ -21,7 +21,7 @@ from safetensors.numpy import load_file, save_file
 
 from augment.clip import MotionClip
 from augment.corpus.rejects import Reject
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.features import feature_slices, recover_from_ric
 from augment.methods.base import ARTIFACT_JSON, ARTIFACT_WEIGHTS, Progress, StyleTransferMethod, TransferOutput
 from schemas.captions import Caption

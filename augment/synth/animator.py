@@ -16,7 +16,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.synth import contents as C
 from augment.synth.contents import CONTENTS, ContentContext, ContentMotion
 from augment.synth.styles import STYLES, StyleParams, style_params

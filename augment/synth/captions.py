@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.synth.animator import ClipSpec
 from augment.synth.styles import STYLE_WORDS
 from schemas.captions import Caption

@@ -17,7 +17,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict
 
 from augment.clip import MotionClip
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from augment.synth.animator import ClipSpec, render, sample_spec
 from augment.synth.captions import make_captions
 from augment.synth.contents import CONTENTS

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields, replace
 
-from augment.errors import MotionDataError
+from schemas.errors import MotionDataError
 from schemas.styles import StyleWords
 
 
