@@ -1,0 +1,282 @@
+"""On-the-fly style transfer against the synthetic corpus's paired ground truth, plus fine-tune time and throughput.
+
+Usage: python bench/bench_onthefly.py [--work /tmp/otf-bench] [--size small] [--n-clips 600] [--style proud]
+       [--example-content walk] [--n-content 36] [--lora-rank 8] [--threads 2] [--random-base] [--quick]
+       [--skip ablation,lora,throughput]
+
+Protocol: fine-tune on ONE example clip of ``--style`` (a ``--example-content`` clip of the corpus), then transfer
+neutral clips of the OTHER contents. Reported: SRA/CRA with the base models' classifiers (style = target style,
+content = the clip's own), MPJPE of the output to the ground-truth stylised rendering of the same clip spec
+(``ClipSpec.with_style``) vs the neutral input's (global joints and root-relative joints: the output keeps the
+neutral path while the stylised ground truth walks its own, so the global figure mixes path and pose), fine-tune
+seconds, the ablation without L_s, LoRA vs full fine-tuning, and transfer throughput (small/paper, fp32/bf16).
+
+Base models come from ``augment.pretrain.ensure_base_models(corpus, out, size)``; with ``--random-base`` (or when
+that module is absent) they are random of ``--size`` and the classifier figures are left out (null).
+``--quick``: tiny sizes and few clips, a smoke run in well under a minute.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from augment.base_models import BaseModels, BaseModelsInfo, config_dict
+from augment.clip import MotionClip
+from augment.evaluation_inputs import features_to_joints, pad_batch
+from augment.methods.base import TransferOutput
+from augment.methods.onthefly import OnTheFlyMethod, OnTheFlyModel, parse_params
+from augment.metrics import mpjpe, recognition_accuracy
+from augment.style_examples import load_style_examples
+from models.mdm import MDM, MDMConfig
+from models.motion_encoder import MotionEncoder, MotionEncoderConfig
+from schemas.skeleton import T2M
+from schemas.styles import StyleExample, StyleSpec, StyleWords
+
+
+def load_corpus(work: Path, n_clips: int, seed: int) -> tuple[Path, list[MotionClip]]:
+    """The default synthetic corpus under ``work/corpus`` (generated once), read back with its specs."""
+    from augment.corpus.humanml3d import HumanML3DReader
+    from augment.synth.corpus import generate_corpus, read_labels
+
+    root = work / "corpus"
+    if not (root / "labels.jsonl").is_file():
+        generate_corpus(root, n_clips=n_clips, seed=seed)
+    labels = {r["id"]: r for r in read_labels(root)}
+    clips = []
+    for clip in HumanML3DReader(root, split="all"):
+        record = labels.get(clip.meta.get("parent", clip.id))
+        if record is not None:
+            clip.content, clip.style = record["content"], record["style"]
+            clip.meta = {**clip.meta, "spec": json.dumps(record["spec"]), "split": record.get("split") or ""}
+        clips.append(clip)
+    return root, clips
+
+
+def random_base(size: str, normalizer_dir: Path, out: Path) -> Path:
+    """Random base models of a named size (no classifiers), Mean/Std from the corpus: timing and smoke runs."""
+    from augment.features import Normalizer
+
+    torch.manual_seed(0)
+    prior_cfg, enc_cfg = MDMConfig.named(size), MotionEncoderConfig.named(size)
+    info = BaseModelsInfo(size=size, max_frames=240, prior=config_dict(prior_cfg), motion_encoder=config_dict(enc_cfg))
+    base = BaseModels(info=info, prior=MDM(prior_cfg), motion_encoder=MotionEncoder(enc_cfg),
+                      normalizer=Normalizer.load(normalizer_dir))  # fmt: skip
+    return base.save(out)
+
+
+def get_base(work: Path, corpus_dir: Path, size: str, random: bool, caps: dict[str, float]) -> tuple[Path, bool]:
+    """(base-models folder, whether it is pretrained). ``caps``: PretrainConfig overrides (time caps, batch) for 2 cores."""
+    if not random:
+        try:
+            from augment.pretrain import PretrainConfig, ensure_base_models
+        except ImportError:
+            print("augment.pretrain is not available: random base models, no classifier figures")
+        else:
+            config = PretrainConfig.for_size(size, **{k: v for k, v in caps.items() if v})
+            return Path(ensure_base_models(corpus_dir, work / f"base-{size}", size, config=config)), True
+    out = work / f"random-base-{size}"
+    if not (out / "base.json").is_file():
+        random_base(size, corpus_dir, out)
+    return out, False
+
+
+def style_words(style: str) -> StyleWords:
+    from augment.synth.styles import STYLE_WORDS
+
+    w = STYLE_WORDS[style]
+    return StyleWords(adjective=w.adjective, adverb=w.adverb, phrases=tuple(w.phrases))
+
+
+def pick_clips(clips: Sequence[MotionClip], style: str, content: str, n_content: int) -> tuple[MotionClip, list[MotionClip]]:
+    """One ``style`` clip of ``content`` (train split if marked), and neutral clips of every other content."""
+    candidates = [c for c in clips if c.style == style and c.content == content]
+    train = [c for c in candidates if c.meta.get("split") == "train"] or candidates
+    if not train:
+        raise SystemExit(f"no {style} {content} clip in the corpus")
+    neutral = [c for c in clips if c.style == "neutral" and c.content != content]
+    by_content: dict[str, list[MotionClip]] = {}
+    for clip in neutral:
+        by_content.setdefault(clip.content or "", []).append(clip)
+    chosen: list[MotionClip] = []
+    while len(chosen) < n_content and any(by_content.values()):  # round-robin over contents
+        for group in by_content.values():
+            if group and len(chosen) < n_content:
+                chosen.append(group.pop(0))
+    return train[0], chosen
+
+
+def ground_truth(clip: MotionClip, style: str) -> np.ndarray:
+    """The same clip spec rendered in ``style``: the paired target features."""
+    from augment.features import extract_features
+    from augment.synth import ClipSpec, render
+
+    spec = ClipSpec.from_json(clip.meta["spec"]).with_style(style)
+    return extract_features(render(spec).joints, source=f"ground truth of {clip.id}")
+
+
+def _joints(motion: np.ndarray) -> np.ndarray:
+    return features_to_joints(torch.as_tensor(motion), T2M).numpy()
+
+
+def pose_errors(outputs: Sequence[np.ndarray], inputs: Sequence[np.ndarray], targets: Sequence[np.ndarray]) -> dict[str, float]:
+    """Mean MPJPE (m) of outputs and of inputs to the targets: global, and root-relative (pelvis subtracted)."""
+    result: dict[str, list[float]] = {"out_global": [], "in_global": [], "out_local": [], "in_local": []}
+    for out, inp, tgt in zip(outputs, inputs, targets):
+        n = min(len(out), len(inp), len(tgt))
+        jo, ji, jt = _joints(out[:n]), _joints(inp[:n]), _joints(tgt[:n])
+        result["out_global"].append(mpjpe(jo, jt))
+        result["in_global"].append(mpjpe(ji, jt))
+        result["out_local"].append(mpjpe(jo - jo[:, :1], jt - jt[:, :1]))
+        result["in_local"].append(mpjpe(ji - ji[:, :1], jt - jt[:, :1]))
+    means = {k: float(np.mean(v)) for k, v in result.items()}
+    for kind in ("global", "local"):
+        means[f"reduction_{kind}"] = 1.0 - means[f"out_{kind}"] / means[f"in_{kind}"]
+    return means
+
+
+def accuracies(base: BaseModels, motions: Sequence[np.ndarray], contents: Sequence[str], style: str) -> dict[str, float | None]:
+    """SRA (style classifier says ``style``) and CRA (content classifier says the clip's content)."""
+    if base.content_classifier is None or base.style_classifier is None:
+        return {"sra": None, "cra": None}
+    joints, mask = pad_batch([_joints(m) for m in motions])
+    with torch.no_grad():
+        style_logits = base.style_classifier(joints, mask)
+        content_logits = base.content_classifier(joints, mask)
+    s_idx = [base.info.style_labels.index(style)] * len(motions)
+    c_idx = [base.info.content_labels.index(c) for c in contents]
+    return {"sra": recognition_accuracy(style_logits, s_idx), "cra": recognition_accuracy(content_logits, c_idx)}
+
+
+def run_variant(
+    name: str, params: dict[str, Any], spec: StyleSpec, examples: list[MotionClip], base_dir: Path,
+    corpus: Sequence[MotionClip], content: list[MotionClip], work: Path, style: str,
+) -> dict[str, Any]:  # fmt: skip
+    """Fine-tune one variant, transfer the content clips, score them."""
+    method = OnTheFlyMethod(parse_params(params))
+    start = time.perf_counter()
+    artifact = method.prepare(spec, examples, base_dir, corpus, work / f"artifact-{name}")
+    prepare_s = time.perf_counter() - start
+    info = json.loads((artifact / "artifact.json").read_text())
+    model: OnTheFlyModel = method.load(artifact, base_dir)
+    start = time.perf_counter()
+    outs = model.transfer(content, seed=0)
+    transfer_s = time.perf_counter() - start
+    done = [o for o in outs if isinstance(o, TransferOutput)]
+    motions = [o.motion for o in done]
+    curve = info["loss_curve"]
+    k = max(1, len(curve) // 10)
+    return {
+        "variant": name, "prepare_s": prepare_s, "finetune_s": info["timings"].get("finetune_s"),
+        "pairs_and_pool_s": info["timings"].get("pairs_and_pool_s"), "steps": len(curve),
+        "pool_clips": info["pool_clips"], "weights_bytes": info["weights_bytes"],
+        "weights_share": info["weights_bytes"] / info["full_model_bytes"],
+        "l_rec_first_last": [float(np.mean([r["l_rec"] for r in curve[:k]])), float(np.mean([r["l_rec"] for r in curve[-k:]]))],
+        "l_s_first_last": [float(np.mean([r["l_s"] for r in curve[:k]])), float(np.mean([r["l_s"] for r in curve[-k:]]))],
+        "transferred": len(done), "rejected": len(outs) - len(done), "transfer_clips_per_s": len(done) / transfer_s,
+        **accuracies(model.base, motions, [c.content or "" for c in content], style),
+        "input_accuracy": accuracies(model.base, [c.motion for c in content], [c.content or "" for c in content], style),
+        "mpjpe": pose_errors(motions, [c.motion for c in content], [ground_truth(c, style) for c in content]),
+        "mean_scores": {key: float(np.mean([o.scores[key] for o in done])) for key in done[0].scores} if done else {},
+    }  # fmt: skip
+
+
+def throughput(
+    sizes: Sequence[str], content: list[MotionClip], spec: StyleSpec, normalizer_dir: Path, work: Path, batch: int
+) -> list[dict[str, Any]]:
+    """Transfer clips/s of random transfer models (speed does not depend on weights), fp32 and bf16."""
+    rows = []
+    for size in sizes:
+        base_dir = work / f"random-base-{size}"
+        if not (base_dir / "base.json").is_file():
+            random_base(size, normalizer_dir, base_dir)
+        base = BaseModels.load(base_dir)
+        for bf16 in (False, True):
+            model = OnTheFlyModel(spec, base, base.prior, parse_params(bf16=bf16, batch_size=batch))
+            model.transfer(content[:batch])  # warm-up (text encoder, kernels)
+            start = time.perf_counter()
+            outs = model.transfer(content)
+            seconds = time.perf_counter() - start
+            rows.append({"size": size, "bf16": bf16, "clips": len(outs), "batch": batch, "clips_per_s": len(outs) / seconds})
+    return rows
+
+
+def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--work", type=Path, default=Path("/tmp/otf-bench"))
+    parser.add_argument("--size", default="small")
+    parser.add_argument("--n-clips", type=int, default=600)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--style", default="proud")
+    parser.add_argument("--example-content", default="walk")
+    parser.add_argument("--n-content", type=int, default=36)
+    parser.add_argument("--lora-rank", type=int, default=8)
+    parser.add_argument("--threads", type=int, default=int(os.environ.get("MOTIONAUG_TORCH_THREADS", "2")))
+    parser.add_argument("--random-base", action="store_true")
+    parser.add_argument("--base-dir", type=Path, default=None, help="use this base-models folder as it is")
+    parser.add_argument("--prior-time-s", type=float, default=1200.0, help="pretraining cap for the prior (0: none)")
+    parser.add_argument("--encoder-time-s", type=float, default=300.0, help="pretraining cap for the motion encoder")
+    parser.add_argument("--pretrain-batch", type=int, default=16, help="pretraining batch size (small preset: 64)")
+    parser.add_argument("--pretrain-only", action="store_true", help="build the base models and stop")
+    parser.add_argument("--quick", action="store_true", help="tiny sizes, few clips: a smoke run")
+    parser.add_argument("--skip", default="", help="comma list of: ablation, lora, throughput")
+    parser.add_argument("--params", default="{}", help="JSON overrides of OnTheFlyParams for every variant")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    os.environ["MOTIONAUG_TORCH_THREADS"] = str(args.threads)
+    skip = set(filter(None, args.skip.split(",")))
+    overrides = json.loads(args.params)
+    if args.quick:
+        args.size, args.n_clips, args.n_content, args.random_base = "tiny", min(args.n_clips, 48), min(args.n_content, 4), True
+        overrides = {"pair_steps": 20, "max_steps": 2, "batch_size": 4, **overrides}
+    args.work.mkdir(parents=True, exist_ok=True)
+    corpus_dir, corpus = load_corpus(args.work, args.n_clips, args.seed)
+    caps = {"prior_time_s": args.prior_time_s, "encoder_time_s": args.encoder_time_s, "batch_size": args.pretrain_batch}
+    if args.base_dir is not None:
+        base_dir, pretrained = args.base_dir, BaseModels.load(args.base_dir).style_classifier is not None
+    else:
+        base_dir, pretrained = get_base(args.work, corpus_dir, args.size, args.random_base, caps)
+    if args.pretrain_only:
+        print(json.dumps({"base_dir": str(base_dir), "pretrained": pretrained}))
+        return {"base_dir": str(base_dir)}
+    example, content = pick_clips(corpus, args.style, args.example_content, args.n_content)
+    words = style_words(args.style)
+    description = next((c.text for c in example.captions if words.adjective in c.text or (words.adverb or "@") in c.text
+                        or any(p in c.text for p in words.phrases)), f"a person walks {words.adverb or words.phrases[0]}")
+    spec = StyleSpec(name=args.style, words=words, examples=[StyleExample(source=example.id, description=description)])
+    examples = load_style_examples(spec, {example.id: example})
+    pool = [c for c in corpus if c.id != example.id and c not in content]
+    report: dict[str, Any] = {
+        "args": {k: str(v) for k, v in vars(args).items()}, "pretrained_base": pretrained, "base_dir": str(base_dir),
+        "example": {"id": example.id, "content": example.content, "description": description},
+        "n_content": len(content), "contents": sorted({c.content or "" for c in content}), "corpus_clips": len(corpus),
+        "threads": torch.get_num_threads(), "uptime_before": subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip(),
+    }  # fmt: skip
+    variants = {"full": overrides}
+    if "ablation" not in skip:
+        variants["no_semantic_loss"] = {**overrides, "lambda_s": 0.0}
+    if "lora" not in skip:
+        lora_lr = 10 * overrides.get("lr", 1e-4)  # adapters start at zero and learn slower: the usual 10x rate
+        variants[f"lora{args.lora_rank}"] = {"lr": lora_lr, **overrides, "lora_rank": args.lora_rank}
+    report["variants"] = [run_variant(n, p, spec, examples, base_dir, pool, content, args.work, args.style)
+                          for n, p in variants.items()]  # fmt: skip
+    if "throughput" not in skip:
+        sizes = ["tiny"] if args.quick else ["small", "paper"]
+        report["throughput"] = throughput(sizes, content, spec, corpus_dir, args.work, batch=8)
+    report["uptime_after"] = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
+    (args.work / "bench_onthefly.json").write_text(json.dumps(report, indent=2))
+    print(json.dumps(report, indent=2))
+    return report
+
+
+if __name__ == "__main__":
+    main()
