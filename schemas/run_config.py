@@ -31,6 +31,9 @@ class CorpusFilters(_Strict):
     """Which clips of the corpus are stylized (all of them when empty)."""
 
     contents: list[str] | None = Field(default=None, description="Keep clips whose content label is listed.")
+    source_styles: list[str] | None = Field(
+        default=None, description="Keep clips whose style label is listed (e.g. [neutral] to stylize only neutral clips)."
+    )
     caption_regex: str | None = Field(default=None, description="Keep clips with a caption matching this regex.")
     min_frames: int | None = Field(default=None, ge=1)
     max_frames: int | None = Field(default=None, ge=1)

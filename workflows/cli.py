@@ -28,6 +28,7 @@ from schemas.errors import MotionDataError
 
 if TYPE_CHECKING:
     from schemas.run_config import RunConfig
+    from workflows.ray_executor import RunSummary
 
 app = typer.Typer(help="Stylistic expansion of text-to-motion datasets.", no_args_is_help=True, add_completion=False)
 corpus_app = typer.Typer(help="Make, import and inspect motion corpora.", no_args_is_help=True)
@@ -126,13 +127,19 @@ def corpus_import_bvh(
 
 @app.command()
 def demo(
-    out: Annotated[Path, typer.Option(help="Where the demo writes everything.")] = Path("demo-out"),
-    clips: Annotated[int, typer.Option(min=10, help="Synthetic clips to render.")] = 1000,
+    out: Annotated[Path, typer.Option(help="Where the demo writes everything; run again to resume.")] = Path("demo-out"),
+    clips: Annotated[int, typer.Option(min=40, help="Synthetic clips to render.")] = 1000,
 ) -> None:
-    """The embedded default end to end (for now: render the synthetic corpus and inspect it)."""
-    corpus = out / "corpus"
-    corpus_synth(out=corpus, clips=clips, seed=0)
-    corpus_inspect(corpus)
+    """The embedded default end to end: synthetic corpus, three styles from one example each, every neutral
+    clip stylized into Parquet shards, and the expanded corpus exported in the HumanML3D layout."""
+    from workflows.demo import run_demo
+
+    with Progress(*RUN_COLUMNS, console=console) as bars:
+        result = run_safely(lambda: run_demo(out, clips, progress=_Bars(bars)))
+    _print_run_summary(result.run)
+    e = result.export
+    console.print(f"corpus {result.corpus}; expanded corpus {e.out}: {e.originals} original + {e.stylized} stylized clips")
+    console.print(f"next: motionaug preview {result.run.run_dir} --grid 6   |   motionaug evaluate {result.run.run_dir}")
 
 
 @app.command()
@@ -167,6 +174,11 @@ def pretrain(
     console.print(table)
 
 
+RUN_COLUMNS = (
+    TextColumn("{task.description:>12}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn()
+)
+
+
 class _Bars:
     """Rich progress bars fed by the executor's ``RunProgress`` calls."""
 
@@ -197,11 +209,12 @@ def run_command(
     with usage_errors():
         cfg = _load_config(config, overrides or [], address, out)
         check_config(cfg)
-    columns = (
-        TextColumn("{task.description:>12}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn()
-    )
-    with Progress(*columns, console=console) as bars:
+    with Progress(*RUN_COLUMNS, console=console) as bars:
         summary = run_safely(lambda: execute_run(cfg, force=force, progress=_Bars(bars)))
+    _print_run_summary(summary)
+
+
+def _print_run_summary(summary: "RunSummary") -> None:
     table = Table(title=f"run {summary.run_id}")
     for column in ("stage", "tasks", "skipped", "seconds"):
         table.add_column(column, justify="right" if column != "stage" else "left")

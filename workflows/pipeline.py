@@ -168,6 +168,8 @@ def keep_clip(clip: MotionClip, config: RunConfig) -> bool:
     f = config.corpus.filters
     if f.contents is not None and clip.content not in f.contents:
         return False
+    if f.source_styles is not None and clip.style not in f.source_styles:
+        return False
     if f.min_frames is not None and clip.n_frames < f.min_frames:
         return False
     if f.max_frames is not None and clip.n_frames > f.max_frames:
