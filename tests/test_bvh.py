@@ -32,6 +32,7 @@ from augment.retarget import (
     retarget_positions,
 )
 from schemas.skeleton import T2M
+from conftest import require_shared
 
 FIXTURES = Path(__file__).resolve().parent / "fixtures" / "bvh"
 WALK = FIXTURES / "dataset-1" / "data" / "dataset-1_walk_normal_002.bvh"
@@ -40,15 +41,6 @@ RAISE = FIXTURES / "dataset-2" / "data" / "dataset-2_raise-up-left-hand_active_0
 J = {name: i for i, name in enumerate(T2M.joint_names)}
 
 
-def shared_data(*parts: str) -> Path:
-    """Path under ../shared/data; skip when absent, fail when CI=true."""
-    path = Path(__file__).resolve().parents[2].joinpath("shared", "data", *parts)
-    if not path.exists():
-        message = f"{path} is absent (the project's ../shared/data)"
-        if os.environ.get("CI", "").lower() == "true":
-            pytest.fail(message)
-        pytest.skip(message)
-    return path
 
 
 def _fixture_lines(path: Path) -> list[str]:
@@ -299,7 +291,7 @@ def test_joints_to_bvh_is_exact_for_a_rigid_clip(tmp_path: Path) -> None:
 
 
 def test_joints_to_bvh_on_humanml3d_clip(tmp_path: Path) -> None:
-    joints = np.load(shared_data("humanml3d_sample", "new_joints", "012314.npy"))
+    joints = np.load(require_shared("humanml3d_sample", "new_joints", "012314.npy"))
     err = joints_to_bvh(tmp_path / "hml.bvh", joints)
     back = read_bvh(tmp_path / "hml.bvh")
     got = back.global_positions()[:, [back.names.index(n) for n in T2M.joint_names]]
@@ -416,7 +408,7 @@ def test_labels_from_bandai(tmp_path: Path) -> None:
 
 
 def test_every_shared_bandai_file_parses() -> None:
-    root = shared_data("bandai")
+    root = require_shared("bandai")
     files = sorted(root.glob("dataset-*/data/*.bvh"))
     empty = [f for f in files if f.stat().st_size == 0]
     assert [f.name for f in empty] == ["dataset-1_dance-long_normal_001.bvh"]  # missing upstream

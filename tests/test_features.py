@@ -35,21 +35,13 @@ from augment.kinematics import (
 )
 from augment.rotations import axis_angle_to_quat, euler_to_quat, qmul, quat_to_cont6d
 from schemas.skeleton import KIT, T2M, Skeleton
+from conftest import require_shared
 
 torch.set_num_threads(1)
 FIXTURES = Path(__file__).resolve().parent / "fixtures" / "humanml3d"
 CLIP = "012314.npy"
 
 
-def shared_data(*parts: str) -> Path:
-    """Path under the repo's ../shared/data; skip when absent, fail when CI=true."""
-    path = Path(__file__).resolve().parents[2].joinpath("shared", "data", *parts)
-    if not path.exists():
-        message = f"{path} is absent (the project's ../shared/data)"
-        if os.environ.get("CI", "").lower() == "true":
-            pytest.fail(message)
-        pytest.skip(message)
-    return path
 
 
 @pytest.fixture(scope="module")
@@ -94,7 +86,7 @@ def kit_offsets() -> np.ndarray:
 
 
 def test_shipped_t2m_offsets_equal_reference_clip_frame0() -> None:
-    joints = np.load(shared_data("humanml3d_sample", "joints", "000021.npy"))[0, :22]
+    joints = np.load(require_shared("humanml3d_sample", "joints", "000021.npy"))[0, :22]
     parents = T2M.parents
     raw = np.asarray(T2M.raw_offsets, dtype=np.float64)
     # the reference: raw direction times bone length, computed in float32 (``get_offsets_joints``)
@@ -315,7 +307,7 @@ def test_dataset_std_is_constant_within_our_blocks() -> None:
 
 
 def test_shared_mean_std_load() -> None:
-    norm = Normalizer.load(shared_data("humanml3d_sample"))
+    norm = Normalizer.load(require_shared("humanml3d_sample"))
     assert norm.mean.shape == norm.std.shape == (263,) and norm.mean.dtype == np.float32
 
 

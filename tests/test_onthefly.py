@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +38,7 @@ from augment.synth.corpus import spec_to_clip
 from models.mdm import MDM, MDMConfig
 from models.motion_encoder import MotionEncoder, MotionEncoderConfig
 from schemas.styles import StyleExample, StyleSpec, StyleWords
+from conftest import require_shared
 
 torch.set_num_threads(1)
 FRAMES = 40
@@ -46,14 +46,6 @@ FIXTURES = Path(__file__).resolve().parent / "fixtures"
 PROUD = StyleWords(adjective="proud", adverb="proudly", phrases=("in a proud way", "with pride"))
 
 
-def shared_data() -> Path:
-    """../shared/data beside the checkout; skip when absent outside CI, fail in CI."""
-    path = Path(__file__).resolve().parents[2] / "shared" / "data"
-    if not path.exists():
-        if os.environ.get("CI", "").lower() == "true":
-            pytest.fail(f"{path} is absent (the project's ../shared/data)")
-        pytest.skip(f"{path} is absent (the project's ../shared/data)")
-    return path
 
 
 class HashTextEncoder:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import hashlib
-import os
 from pathlib import Path
 
 import numpy as np
@@ -27,19 +26,10 @@ from augment.synth.corpus import (
     spec_to_clip,
 )
 from augment.synth.styles import style_params
+from conftest import require_shared
 
-SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
 
-def require_shared(*parts: str) -> Path:
-    """Path under ../shared/data; skip outside CI when absent, fail in CI (CI=true)."""
-    path = SHARED_DATA.joinpath(*parts)
-    if not path.exists():
-        message = f"{path} is absent (the project's ../shared/data)"
-        if os.environ.get("CI", "").lower() == "true":
-            pytest.fail(message)
-        pytest.skip(message)
-    return path
 
 
 @pytest.fixture
