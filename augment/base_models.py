@@ -26,7 +26,7 @@ from torch import nn
 
 from schemas.errors import MotionDataError
 from augment.features import Normalizer
-from augment.io import atomic_path, atomic_write_text
+from augment.io import atomic_path, atomic_write_text, read_json_model
 from models.evaluators import ClassifierConfig, MotionClassifier
 from models.mdm import MDM, MDMConfig
 from models.motion_encoder import MotionEncoder, MotionEncoderConfig
@@ -104,13 +104,7 @@ class BaseModels:
     @classmethod
     def load(cls, directory: str | Path, text_encoder: TextEncoder | None = None) -> "BaseModels":
         folder = Path(directory)
-        info_path = folder / BASE_JSON
-        if not info_path.is_file():
-            raise MotionDataError(str(folder), f"not a base-models folder: no {BASE_JSON} (run `motionaug pretrain`)")
-        try:
-            info = BaseModelsInfo.model_validate_json(info_path.read_text(encoding="utf-8"))
-        except ValueError as err:
-            raise MotionDataError(str(info_path), f"unreadable base-models info ({str(err).splitlines()[0]})") from None
+        info = read_base_info(folder)
         prior = MDM(MDMConfig(**info.prior))
         encoder = MotionEncoder(MotionEncoderConfig(**info.motion_encoder))
         load_module(prior, folder / f"{PRIOR}.safetensors")
@@ -126,6 +120,11 @@ class BaseModels:
             content_classifier=classifiers.get(CONTENT_CLASSIFIER), style_classifier=classifiers.get(STYLE_CLASSIFIER),
             _text_encoder=text_encoder,
         ).eval()  # fmt: skip
+
+
+def read_base_info(folder: str | Path) -> BaseModelsInfo:
+    """The ``base.json`` of a base-models folder (written last, so its presence marks a complete folder)."""
+    return read_json_model(Path(folder) / BASE_JSON, BaseModelsInfo, "a base-models folder (run `motionaug pretrain`)")
 
 
 def config_dict(config: Any) -> dict[str, Any]:

@@ -33,7 +33,7 @@ import pyarrow.parquet as pq
 import torch
 from scipy.linalg import LinAlgWarning
 
-from augment.base_models import BASE_JSON, CONTENT_CLASSIFIER, STYLE_CLASSIFIER, BaseModelsInfo, load_module
+from augment.base_models import BASE_JSON, CONTENT_CLASSIFIER, STYLE_CLASSIFIER, load_module, read_base_info
 from augment.clip import MotionClip
 from augment.corpus import HumanML3DReader, detect_format, open_corpus
 from augment.corpus.humanml3d import check_id
@@ -133,13 +133,7 @@ class Evaluation:
 def load_classifiers(base_dir: str | Path) -> Classifiers:
     """Only the evaluators of a base-models folder (the prior and encoders are not needed to evaluate)."""
     folder = Path(base_dir)
-    info_path = folder / BASE_JSON
-    if not info_path.is_file():
-        raise MotionDataError(str(folder), f"not a base-models folder: no {BASE_JSON}")
-    try:
-        info = BaseModelsInfo.model_validate_json(info_path.read_text(encoding="utf-8"))
-    except ValueError as err:
-        raise MotionDataError(str(info_path), f"unreadable base-models info ({str(err).splitlines()[0]})") from None
+    info = read_base_info(folder)
     loaded: dict[str, MotionClassifier | None] = {}
     for name in (CONTENT_CLASSIFIER, STYLE_CLASSIFIER):
         config = getattr(info, name)

@@ -11,9 +11,12 @@ import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import IO
+from typing import IO, TypeVar
 
 import numpy as np
+from pydantic import BaseModel
+
+from schemas.errors import MotionDataError
 
 
 def temp_path_for(path: str | os.PathLike[str]) -> Path:
@@ -74,3 +77,17 @@ def _fsync_file(path: Path) -> None:
         os.fsync(fd)
     finally:
         os.close(fd)
+
+
+M = TypeVar("M", bound=BaseModel)
+
+
+def read_json_model(path: str | os.PathLike[str], model: type[M], what: str) -> M:
+    """A pydantic model from a JSON file, or a one-line error naming the file and what it should be."""
+    path = Path(path)
+    if not path.is_file():
+        raise MotionDataError(str(path.parent), f"not {what}: no {path.name}")
+    try:
+        return model.model_validate_json(path.read_text(encoding="utf-8"))
+    except ValueError as err:
+        raise MotionDataError(str(path), f"unreadable {what} ({str(err).splitlines()[0]})") from None

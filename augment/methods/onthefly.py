@@ -51,7 +51,7 @@ from augment.diffusion.schedule import NUM_TRAIN_TIMESTEPS
 from schemas.errors import MotionDataError
 from augment.evaluation_inputs import features_to_joints, pad_batch
 from augment.features import feature_slices
-from augment.io import atomic_path, atomic_write_text
+from augment.io import atomic_path, atomic_write_text, read_json_model
 from augment.methods.base import ARTIFACT_JSON, ARTIFACT_WEIGHTS, Progress, StyleTransferMethod, TransferOutput
 from augment.metrics import foot_skating_ratio
 from augment.style_examples import check_motion
@@ -620,12 +620,7 @@ def weights_state(model: nn.Module, params: OnTheFlyParams) -> dict[str, Tensor]
 
 def read_artifact(artifact_dir: Path) -> OnTheFlyArtifact:
     path = Path(artifact_dir) / ARTIFACT_JSON
-    if not path.is_file():
-        raise MotionDataError(str(artifact_dir), f"not an on-the-fly artefact: no {ARTIFACT_JSON}")
-    try:
-        info = OnTheFlyArtifact.model_validate_json(path.read_text(encoding="utf-8"))
-    except ValueError as err:
-        raise MotionDataError(str(path), f"unreadable artefact ({str(err).splitlines()[0]})") from None
+    info = read_json_model(path, OnTheFlyArtifact, "an on-the-fly artefact")
     if info.method != METHOD_NAME:
         raise MotionDataError(str(path), f"artefact of method {info.method!r}, not {METHOD_NAME!r}")
     return info
