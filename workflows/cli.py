@@ -72,6 +72,14 @@ def run_safely(fn: Callable[[], T]) -> T:
         return fn()
 
 
+def _facts(title: str, rows: list[tuple[str, object]]) -> Table:
+    """A two-column key/value table."""
+    table = Table(title=title, show_header=False)
+    for key, value in rows:
+        table.add_row(key, str(value))
+    return table
+
+
 def _counts(counts: dict[str, int]) -> str:
     return ", ".join(f"{k} {v}" for k, v in counts.items()) or "-"
 
@@ -96,14 +104,11 @@ def corpus_inspect(path: Annotated[Path, typer.Argument(help="A HumanML3D folder
     from augment.corpus import inspect_corpus
 
     info = run_safely(lambda: inspect_corpus(path))
-    table = Table(title=f"{info.path} ({info.format})", show_header=False)
-    for key, value in [
+    console.print(_facts(f"{info.path} ({info.format})", [
         ("clips", info.clips), ("frames", info.frames), ("hours", f"{info.hours:.2f}"), ("captions", info.captions),
         ("splits", _counts(info.splits)), ("contents", _counts(info.contents)),
         ("styles", _counts(info.styles)), ("rejects", info.rejects),
-    ]:  # fmt: skip
-        table.add_row(key, str(value))
-    console.print(table)
+    ]))  # fmt: skip
 
 
 @corpus_app.command("import-bvh")
@@ -168,10 +173,7 @@ def pretrain(
     from augment.base_models import BaseModels
 
     info = BaseModels.load(folder).info
-    table = Table(title=f"base models in {folder}", show_header=False)
-    for key, value in sorted(info.metrics.items()):
-        table.add_row(key, f"{value:.4f}")
-    console.print(table)
+    console.print(_facts(f"base models in {folder}", [(k, f"{v:.4f}") for k, v in sorted(info.metrics.items())]))
 
 
 RUN_COLUMNS = (
@@ -266,14 +268,11 @@ def status_command(
             console.print("run folder not reachable from here; progress shows on the cluster's storage")
             return
     st = run_safely(lambda: run_status(run_dir))
-    table = Table(title=f"{st.run_dir} ({st.run_id})", show_header=False)
-    for key, value in [
+    console.print(_facts(f"{st.run_dir} ({st.run_id})", [
         ("plan", f"{st.clips} clips" if st.planned else "not yet"), ("fine-tunes", f"{st.styles_done}/{st.styles_total}"),
         ("shards", f"{st.shards_done}/{st.shards_total}"), ("rows", st.rows), ("rejects", st.rejects),
         ("complete", "yes" if st.complete else "no"),
-    ]:  # fmt: skip
-        table.add_row(key, str(value))
-    console.print(table)
+    ]))  # fmt: skip
 
 
 @app.command("submit")
