@@ -220,7 +220,7 @@ def test_worker_sigkill_mid_run_loses_and_duplicates_nothing(cluster: str, corpu
 
 
 def test_cancel_stops_a_run_and_retry_resumes_it(cluster: str, corpus: Path, tmp_path: Path) -> None:
-    from workflows.jobs import wait_for_job
+    from workflows.jobs import connect, wait_for_job
 
     out = tmp_path / "run"
     cfg = config_file(tmp_path, corpus, out, seed=2)
@@ -233,7 +233,8 @@ def test_cancel_stops_a_run_and_retry_resumes_it(cluster: str, corpus: Path, tmp
     assert refused.exit_code == 1 and "--retry" in refused.output
     retried = CliRunner().invoke(app, ["submit", str(cfg), "--address", cluster, "--retry"])
     assert retried.exit_code == 0 and f"{job_id}-2" in retried.output, retried.output
-    assert wait_for_job(cluster, f"{job_id}-2", timeout=150).status == "SUCCEEDED"
+    final = wait_for_job(cluster, f"{job_id}-2", timeout=150)
+    assert final.status == "SUCCEEDED", connect(cluster).get_job_logs(f"{job_id}-2")[-3000:]
     assert sorted(output_ids(out)) == sorted(set(output_ids(out))) and len(output_ids(out)) == TOTAL_ROWS
 
 
