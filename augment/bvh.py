@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import os
 import re
-import tempfile
 from dataclasses import dataclass, field
 from itertools import chain
 from pathlib import Path
@@ -27,6 +26,7 @@ from typing import Sequence
 
 import numpy as np
 
+from augment.io import atomic_write_text
 from schemas.errors import MotionDataError
 from schemas.skeleton import T2M, Skeleton
 
@@ -475,7 +475,8 @@ def write_bvh(
     else:
         columns = np.concatenate([translations[:, dfs], angles[:, dfs]], axis=2).reshape(len(root_pos), -1)
     lines += [" ".join(f"{v:.9g}" for v in row) for row in columns]
-    return _atomic_write(Path(path), "\n".join(lines) + "\n")
+    atomic_write_text(path, "\n".join(lines) + "\n")
+    return Path(path)
 
 
 def _check_writer_input(
@@ -556,19 +557,6 @@ def _write_joint(
 
 def _fmt3(v: np.ndarray) -> str:
     return " ".join(f"{float(x):.9g}" for x in v)
-
-
-def _atomic_write(path: Path, text: str) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as handle:
-            handle.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
 
 
 # --------------------------------------------------------------------------- t2m joints -> BVH
