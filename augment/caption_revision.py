@@ -13,6 +13,8 @@ tagged by a small rule-based lexicon instead of spaCy, which is not a dependency
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import random
 import re
 from collections.abc import Iterable, Mapping, Sequence
@@ -327,19 +329,27 @@ class _Form:
     attributive: bool = False  # an adjective: only removed before a person noun
 
 
-def _forms(vocab: Iterable[StyleVocab]) -> list[_Form]:
-    """Every phrase, adverb, 'in a(n) ADJ way/manner/fashion' and adjective; longest first."""
+def _forms(vocab: Iterable[StyleVocab]) -> tuple[_Form, ...]:
+    """Every phrase, adverb, 'in a(n) ADJ way/manner/fashion' and adjective; longest first.
+
+    Memoised on the words themselves: transfer revises thousands of captions with one vocabulary.
+    """
+    return _forms_of(tuple((style.adjective, style.adverb, tuple(style.phrases)) for style in vocab))
+
+
+@lru_cache(maxsize=64)
+def _forms_of(vocab: tuple[tuple[str, str | None, tuple[str, ...]], ...]) -> tuple[_Form, ...]:
     forms: set[_Form] = set()
-    for style in vocab:
-        for text in (*style.phrases, style.adverb or ""):
+    for adjective_text, adverb, phrases in vocab:
+        for text in (*phrases, adverb or ""):
             if _keys(text):
                 forms.add(_Form(_keys(text)))
-        adjective = _keys(style.adjective)
+        adjective = _keys(adjective_text)
         for noun in _WAY_NOUNS:
             for article in ("a", "an"):
                 forms.add(_Form(("in", article, *adjective, noun)))
         forms.add(_Form(adjective, attributive=True))
-    return sorted(forms, key=lambda f: (-len(f.keys), f.keys))
+    return tuple(sorted(forms, key=lambda f: (-len(f.keys), f.keys)))
 
 
 def _matches(doc: _Doc, forms: Sequence[_Form]) -> set[int]:
