@@ -26,17 +26,13 @@ from typer.testing import CliRunner
 
 from schemas.run_config import load_run_config
 from workflows.cli import app
+from conftest import TWO_STYLES
 
 REPO = Path(__file__).resolve().parents[1]
 DEPLOY = REPO / "deploy"
 N_CLIPS = 40
 UNIT_SIZE = 4
-STYLES = [
-    {"name": "proud", "words": {"adjective": "proud", "adverb": "proudly", "phrases": ["in a proud way"]},
-     "examples": [{"source": "000004", "description": "a person walks proudly"}]},
-    {"name": "old", "words": {"adjective": "old", "phrases": ["like an old person"]},
-     "examples": [{"source": "000008", "description": "a person walks like an old person"}]},
-]  # fmt: skip
+STYLES = TWO_STYLES
 TOTAL_ROWS = N_CLIPS * len(STYLES)
 TOTAL_SHARDS = N_CLIPS // UNIT_SIZE * len(STYLES)
 

@@ -27,16 +27,12 @@ from augment.shards import sha256_file
 from schemas.run_config import RunConfig, load_run_config
 from schemas.shards import Manifest
 from workflows.cli import app
+from conftest import TWO_STYLES
 
 REPO = Path(__file__).resolve().parents[1]
 N_CLIPS = 40
 UNIT_SIZE = 4
-STYLES = [
-    {"name": "proud", "words": {"adjective": "proud", "adverb": "proudly", "phrases": ["in a proud way"]},
-     "examples": [{"source": "000004", "description": "a person walks proudly"}]},
-    {"name": "old", "words": {"adjective": "old", "phrases": ["like an old person"]},
-     "examples": [{"source": "000008", "description": "a person walks like an old person"}]},
-]  # fmt: skip
+STYLES = TWO_STYLES
 
 
 def config_dict(corpus: Path, output: Path, **compute: object) -> dict:
