@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import math
 import os
 import shutil
@@ -36,6 +37,7 @@ from augment.corpus.humanml3d import HumanML3DReader
 from augment.diffusion import NoiseSchedule, masked_mse, q_sample, sample_timesteps
 from schemas.errors import MotionDataError
 from augment.evaluation_inputs import features_to_joints, pad_batch
+from augment.cpu import bf16_autocast, cpu_has_bf16
 from augment.evaluator_training import classifier_accuracy, fit_classifier
 from augment.features import Normalizer, compute_mean_std
 from augment.geometric_losses import geometric_losses
@@ -52,6 +54,8 @@ STAGES = ("prior", "motion_encoder", "evaluators")
 CHECKPOINTS = "checkpoints"
 LOSS_LOG = "loss_log.jsonl"
 RETRIEVAL_POOL = 32
+
+LOG = logging.getLogger(__name__)
 
 
 class PretrainConfig(BaseModel):
@@ -115,15 +119,6 @@ class PretrainConfig(BaseModel):
 
     def use_bf16(self) -> bool:
         return cpu_has_bf16() if self.bf16 is None else self.bf16
-
-
-def cpu_has_bf16() -> bool:
-    """True when the CPU advertises native bf16 (AMX or AVX512-BF16), where bf16 matmuls beat fp32."""
-    try:
-        flags = Path("/proc/cpuinfo").read_text(encoding="utf-8", errors="replace")
-    except OSError:
-        return False
-    return "amx_bf16" in flags or "avx512_bf16" in flags
 
 
 # ---- corpus identity ------------------------------------------------------------------------
@@ -304,7 +299,7 @@ def _train_loop(
 
 
 def _autocast(enabled: bool) -> Any:
-    return torch.autocast("cpu", dtype=torch.bfloat16, enabled=enabled)
+    return bf16_autocast(enabled)
 
 
 # ---- stage a: prior -----------------------------------------------------------------------------
@@ -585,6 +580,8 @@ def ensure_base_models(
     fingerprint = corpus_fingerprint(corpus_dir)
     if _complete(out, fingerprint, config.config_hash()):
         return out
+    if (out / BASE_JSON).is_file():  # never replace models silently: say why they are made again
+        LOG.warning("%s: base models there were made from another corpus or pre-training config; pre-training again", out)
     if _stale_checkpoints(out, run_hash(config, fingerprint)):  # made from another corpus or config: start over
         shutil.rmtree(out / CHECKPOINTS, ignore_errors=True)
         (out / LOSS_LOG).unlink(missing_ok=True)

@@ -8,7 +8,8 @@ Protocol: fine-tune on ONE example clip of ``--style`` (a ``--example-content`` 
 neutral clips of the OTHER contents. Reported: SRA/CRA with the base models' classifiers (style = target style,
 content = the clip's own), MPJPE of the output to the ground-truth stylised rendering of the same clip spec
 (``ClipSpec.with_style``) vs the neutral input's (global joints and root-relative joints: the output keeps the
-neutral path while the stylised ground truth walks its own, so the global figure mixes path and pose), fine-tune
+neutral path while the stylised ground truth walks its own, so the global figure mixes path and pose), and the same
+against the style rendered on the content's own clock and stride (``mpjpe_timing_kept``), fine-tune
 seconds, the ablation without L_s, LoRA vs full fine-tuning, and transfer throughput (small/paper, fp32/bf16).
 
 Base models come from ``augment.pretrain.ensure_base_models(corpus, out, size)``; with ``--random-base`` (or when
@@ -115,13 +116,22 @@ def pick_clips(clips: Sequence[MotionClip], style: str, content: str, n_content:
     return train[0], chosen
 
 
-def ground_truth(clip: MotionClip, style: str) -> np.ndarray:
-    """The same clip spec rendered in ``style``: the paired target features."""
+def ground_truth(clip: MotionClip, style: str, keep_timing: bool = False) -> np.ndarray:
+    """The same clip spec rendered in ``style``: the paired target features.
+
+    ``keep_timing``: the style's posture, amplitudes and rhythmic accents on the content's own clock and stride
+    (tempo 1, no hesitations, step 1). The method keeps the content's root trajectory by design (the paper's
+    sec. 7.1), so it cannot follow a style's slower clock or shorter steps; this target isolates what it can.
+    """
+    import dataclasses
+
     from augment.features import extract_features
     from augment.synth import ClipSpec, render
+    from augment.synth.styles import style_params
 
     spec = ClipSpec.from_json(clip.meta["spec"]).with_style(style)
-    return extract_features(render(spec).joints, source=f"ground truth of {clip.id}")
+    params = dataclasses.replace(style_params(style), tempo=1.0, hesitation=0.0, step=1.0) if keep_timing else None
+    return extract_features(render(spec, params).joints, source=f"ground truth of {clip.id}")
 
 
 def _joints(motion: np.ndarray) -> np.ndarray:
@@ -186,6 +196,7 @@ def run_variant(
         **accuracies(model.base, motions, [c.content or "" for c in content], style),
         "input_accuracy": accuracies(model.base, [c.motion for c in content], [c.content or "" for c in content], style),
         "mpjpe": pose_errors(motions, [c.motion for c in content], [ground_truth(c, style) for c in content]),
+        "mpjpe_timing_kept": pose_errors(motions, [c.motion for c in content], [ground_truth(c, style, True) for c in content]),
         "mean_scores": {key: float(np.mean([o.scores[key] for o in done])) for key in done[0].scores} if done else {},
     }  # fmt: skip
 

@@ -1,12 +1,14 @@
 """Transfer-stage scaling of the Ray workflow on this machine.
 
-Measures, for each worker count (an embedded Ray cluster with that many CPUs, one CPU per transfer task):
-throughput of the transfer stage (stylized clips per second), Ray overhead per task as a fraction of task
-time (driver wall time x workers minus in-task time, over in-task time; plus a no-op task round trip),
-the artefact load time as a fraction of a unit, and peak resident memory per worker.
+The run is done once in full (plan, fine-tunes, transfers). Then, for each worker count (an embedded Ray cluster
+with that many CPUs, one CPU and one torch thread per transfer task), its shards are removed and the run is
+resumed: only the transfer stage runs again, with the style artefacts already made, so the figures are the
+transfer stage's alone. Reported per worker count: throughput (stylized clips per second), Ray overhead per task
+as a fraction of task time (stage wall time x workers minus in-task time, over in-task time; plus a no-op task
+round trip), the artefact load time as a fraction of a unit, and peak resident memory per worker.
 
-    .venv/bin/python bench/bench_workflow.py --clips 512 --workers 1 2 --method stats
-    .venv/bin/python bench/bench_workflow.py --clips 64 --unit-size 32 --method onthefly --set method.params.max_steps=2
+    .venv/bin/python bench/bench_workflow.py --method onthefly --base-models /tmp/t2m-full/base --clips 512
+    .venv/bin/python bench/bench_workflow.py --clips 512 --method stats
 
 Run it when the machine is quiet; results go to stdout as JSON (and --out FILE).
 """
@@ -16,16 +18,18 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import statistics
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 STYLES = [
     {"name": "proud", "words": {"adjective": "proud", "adverb": "proudly"},
-     "examples": [{"source": "000004", "description": "a person walks proudly"}]},
+     "examples": [{"source": "000151", "description": "a person walks proudly"}]},
     {"name": "old", "words": {"adjective": "old", "phrases": ["like an old person"]},
-     "examples": [{"source": "000008", "description": "a person walks like an old person"}]},
+     "examples": [{"source": "000084", "description": "an old person walks"}]},
 ]  # fmt: skip
 
 
@@ -46,35 +50,58 @@ def noop_round_trip(n: int = 50) -> float:
     return statistics.median(times)
 
 
-def measure(corpus: Path, workdir: Path, workers: int, args: argparse.Namespace) -> dict:
+def run_config(corpus: Path, out: Path, workers: int, args: argparse.Namespace) -> Any:
+    from schemas.run_config import load_run_config
+
+    data: dict[str, Any] = {
+        "corpus": {"path": str(corpus), "filters": {"source_styles": ["neutral"]}}, "styles": STYLES,
+        "method": {"name": args.method},
+        "compute": {"num_cpus": workers, "unit_size": args.unit_size, "batch_size": args.batch_size},
+        "output": str(out), "seed": 0,
+    }  # fmt: skip
+    if args.base_models:
+        data["base_models"] = {"path": str(args.base_models), "pretrain_if_missing": False}
+    return load_run_config(None, args.set or [], data=data)
+
+
+def execute(config: Any, workers: int, force: bool = False) -> tuple[Any, float]:
+    """One run in a fresh embedded Ray of ``workers`` CPUs; the summary and a no-op round trip (s)."""
     import ray
 
-    from schemas.run_config import load_run_config
     from workflows.ray_executor import execute_run
 
-    data = {
-        "corpus": {"path": str(corpus)}, "styles": STYLES, "method": {"name": args.method},
-        "compute": {"num_cpus": workers, "unit_size": args.unit_size, "batch_size": args.batch_size},
-        "output": str(workdir / f"run-{workers}"), "seed": 0,
-    }  # fmt: skip
-    config = load_run_config(None, args.set or [], data=data)
     ray.init(address="local", num_cpus=workers, include_dashboard=False, log_to_driver=False)
     try:
         noop = noop_round_trip()
-        summary = execute_run(config, force=True)
+        return execute_run(config, force=force), noop
     finally:
         ray.shutdown()
+
+
+def drop_shards(run_dir: Path) -> None:
+    """Remove the transfer stage's outputs so that resuming runs exactly that stage again."""
+    from schemas.shards import RunLayout
+
+    layout = RunLayout(run_dir)
+    for path in (layout.shards_dir, layout.rejects_dir):
+        shutil.rmtree(path, ignore_errors=True)
+    for path in (layout.manifest, layout.success):
+        path.unlink(missing_ok=True)
+
+
+def measure(config: Any, workers: int) -> dict[str, Any]:
+    drop_shards(config.output)
+    summary, noop = execute(config.model_copy(update={"compute": config.compute.model_copy(update={"num_cpus": workers})}), workers)
     manifest = summary.manifest
     transfer = manifest.stages["transfer"]
     in_task = sum(s.seconds for s in manifest.shards)
-    finetune = manifest.stages["finetune"].seconds
-    busy_wall = max(transfer.seconds - finetune, 1e-9) * workers  # fine-tunes overlap the first transfers
+    busy_wall = transfer.seconds * min(workers, len(manifest.shards))
     return {
         "workers": workers, "rows": manifest.rows, "tasks": len(manifest.shards),
-        "transfer_stage_s": round(transfer.seconds, 3), "finetune_s": round(finetune, 3),
-        "clips_per_s": round(manifest.rows / transfer.seconds, 2),
-        "mean_task_s": round(in_task / max(len(manifest.shards), 1), 3),
-        "ray_overhead_fraction": round(max(busy_wall - in_task, 0.0) / max(in_task, 1e-9), 3),
+        "finetune_tasks_run": manifest.stages["finetune"].tasks - manifest.stages["finetune"].skipped,
+        "transfer_stage_s": round(transfer.seconds, 2), "clips_per_s": round(manifest.rows / transfer.seconds, 2),
+        "mean_task_s": round(in_task / max(len(manifest.shards), 1), 2),
+        "ray_overhead_fraction": round(max(busy_wall - in_task, 0.0) / max(in_task, 1e-9), 4),
         "noop_task_round_trip_ms": round(noop * 1000, 2),
         "load_fraction_of_unit": round(sum(s.load_seconds for s in manifest.shards) / max(in_task, 1e-9), 4),
         "peak_rss_mb_per_worker": round(max(s.peak_rss_mb for s in manifest.shards), 1),
@@ -83,28 +110,36 @@ def measure(corpus: Path, workdir: Path, workers: int, args: argparse.Namespace)
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--clips", type=int, default=512)
+    parser.add_argument("--clips", type=int, default=512, help="synthetic corpus size (neutral clips are transferred)")
+    parser.add_argument("--corpus", type=Path, help="use this synthetic corpus instead of rendering one")
     parser.add_argument("--unit-size", type=int, default=256)
     parser.add_argument("--batch-size", type=int, default=32)
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
-    parser.add_argument("--method", default="stats")
+    parser.add_argument("--method", default="onthefly")
+    parser.add_argument("--base-models", type=Path, help="pre-trained base models (onthefly)")
     parser.add_argument("--set", action="append", help="Config override key.sub=value (repeatable).")
+    parser.add_argument("--work", type=Path, help="keep the runs here (default: a temporary folder)")
     parser.add_argument("--out", type=Path)
     args = parser.parse_args()
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-    import torch
-
-    torch.set_num_threads(1)
     from augment.synth import generate_corpus
 
     with tempfile.TemporaryDirectory(prefix="bench-workflow-") as tmp:
-        workdir = Path(tmp)
+        workdir = args.work or Path(tmp)
+        corpus = args.corpus or workdir / "corpus"
         start = time.perf_counter()
-        generate_corpus(workdir / "corpus", args.clips, seed=0)
-        results = {
-            "method": args.method, "clips": args.clips, "unit_size": args.unit_size, "batch_size": args.batch_size,
-            "styles": len(STYLES), "cpu_count": os.cpu_count(), "corpus_s": round(time.perf_counter() - start, 2),
-            "runs": [measure(workdir / "corpus", workdir, w, args) for w in args.workers],
+        if args.corpus is None and not (corpus / "labels.jsonl").is_file():
+            generate_corpus(corpus, args.clips, seed=0)
+        corpus_s = time.perf_counter() - start
+        config = run_config(corpus, workdir / "run", max(args.workers), args)
+        start = time.perf_counter()
+        first, _ = execute(config, max(args.workers), force=True)
+        results: dict[str, Any] = {
+            "method": args.method, "clips": first.manifest.rows // len(STYLES), "unit_size": args.unit_size,
+            "batch_size": args.batch_size, "styles": len(STYLES), "cpu_count": os.cpu_count(),
+            "corpus_s": round(corpus_s, 2), "full_run_s": round(time.perf_counter() - start, 1),
+            "finetune_stage_s": round(first.manifest.stages["finetune"].seconds, 1),
+            "runs": [measure(config, w) for w in args.workers], "load": os.getloadavg(),
         }  # fmt: skip
     runs = results["runs"]
     if len(runs) > 1:

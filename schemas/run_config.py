@@ -82,9 +82,15 @@ class FanOutConfig(_Strict):
 
 
 class BaseModelsConfig(_Strict):
+    """Where the method's base models are. A ``path`` that holds base models is used as it is (e.g. an imported
+    MDM checkpoint); otherwise they are pre-trained there, and reused on later runs while corpus and config match."""
+
     path: Path | None = Field(default=None, description="Pre-trained base models; None: <run>/base_models.")
     pretrain_if_missing: bool = True
     size: Literal["tiny", "small", "paper"] = "small"
+    pretrain: dict[str, Any] = Field(
+        default_factory=dict, description="Overrides of the size's pre-training preset (e.g. prior_time_s)."
+    )
 
 
 class ComputeConfig(_Strict):

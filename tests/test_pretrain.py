@@ -223,7 +223,7 @@ def test_motion_encoder_state_dict_keys_match_standalone_and_shared() -> None:
 
 
 def test_ensure_base_models_reuses_a_match_and_retrains_on_corpus_change(
-    corpus: Path, baseline: tuple[Path, BaseModelsInfo], text_encoder, tmp_path: Path
+    corpus: Path, baseline: tuple[Path, BaseModelsInfo], text_encoder, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     out = tmp_path / "base"
     shutil.copytree(baseline[0], out)
@@ -239,6 +239,7 @@ def test_ensure_base_models_reuses_a_match_and_retrains_on_corpus_change(
     assert corpus_fingerprint(changed) != corpus_fingerprint(corpus)
     ensure_base_models(changed, out, "tiny", config=tiny_config(), progress=lambda *a: calls.append(a[0]), text_encoder=text_encoder)
     assert "prior" in calls
+    assert "made from another corpus or pre-training config; pre-training again" in caplog.text
     assert BaseModelsInfo.model_validate_json((out / "base.json").read_text()).corpus_fingerprint == corpus_fingerprint(changed)
 
 

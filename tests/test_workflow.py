@@ -193,6 +193,8 @@ def test_other_config_in_the_same_folder_is_refused(finished_run, corpus: Path, 
         (lambda d: d.__setitem__("method", {"name": "stats", "params": {"strength": 3}}), "method.params"),
         (lambda d: d.__setitem__("method", {"name": "nope"}), "unknown method"),
         (lambda d: d.__setitem__("colour", "red"), "colour"),
+        (lambda d: d.update(method={"name": "onthefly"}, base_models={"pretrain": {"prior_steps": -1}}),
+         "base_models.pretrain.prior_steps"),
     ],
 )
 def test_config_errors_exit_2_with_one_line(change, expected: str, corpus: Path, tmp_path: Path) -> None:

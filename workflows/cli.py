@@ -134,13 +134,19 @@ def corpus_import_bvh(
 def demo(
     out: Annotated[Path, typer.Option(help="Where the demo writes everything; run again to resume.")] = Path("demo-out"),
     clips: Annotated[int, typer.Option(min=40, help="Synthetic clips to render.")] = 1000,
+    base_models: Annotated[
+        Path | None, typer.Option(help="Base-models folder to reuse or pre-train into (default OUT/base_models).")
+    ] = None,
+    method: Annotated[str, typer.Option(help="onthefly (diffusion, the default) or stats (a fast baseline).")] = "onthefly",
+    size: Annotated[str, typer.Option(help="Base-model size: small, or tiny for a smoke run in about a minute.")] = "small",
 ) -> None:
-    """The embedded default end to end: synthetic corpus, three styles from one example each, every neutral
-    clip stylized into Parquet shards, and the expanded corpus exported in the HumanML3D layout."""
+    """The embedded default end to end: synthetic corpus, `small` base models (pre-trained once, then reused),
+    three styles learnt from one example each, every neutral clip stylized into Parquet shards, and the expanded
+    corpus exported in the HumanML3D layout."""
     from workflows.demo import run_demo
 
     with Progress(*RUN_COLUMNS, console=console) as bars:
-        result = run_safely(lambda: run_demo(out, clips, progress=_Bars(bars)))
+        result = run_safely(lambda: run_demo(out, clips, _Bars(bars), base_models, method, size))
     _print_run_summary(result.run)
     e = result.export
     console.print(f"corpus {result.corpus}; expanded corpus {e.out}: {e.originals} original + {e.stylized} stylized clips")

@@ -1,8 +1,9 @@
 """``motionaug demo``: the embedded default end to end, resumable.
 
-Renders the synthetic corpus (once), takes one example clip per demo style, runs the augmentation workflow
-over every neutral clip, and exports the expanded corpus in the HumanML3D layout. Each step leaves a
-completion marker, so running the demo again with the same folder finishes at once.
+Renders the synthetic corpus (once), pre-trains ``small`` base models on it (once; cached in the demo folder or
+``--base-models``), learns three styles from one example clip each with the on-the-fly diffusion method, stylizes
+every neutral clip, and exports the expanded corpus in the HumanML3D layout. Each step leaves a completion
+marker, so running the demo again with the same folder finishes at once.
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ from __future__ import annotations
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from augment.corpus.humanml3d import read_labels
 from augment.corpus.tokens import parse_caption_line
@@ -24,6 +26,15 @@ from workflows.ray_executor import RunProgress, RunSummary, execute_run
 DEMO_STYLES = ("proud", "depressed", "old")
 DEMO_SEED = 0
 DONE = "_SUCCESS"
+DEMO_METHODS = ("onthefly", "stats")
+# Per base-model size: overrides of its pre-training preset and the on-the-fly method's params. `small` is the
+# demo's share of the 10-minute budget on 2 cores: the prior and the motion encoder stop earlier than
+# `motionaug pretrain` would, and each style's fine-tune has a step budget in bf16 (bench/RESULTS.md has the
+# figures). `tiny` is a smoke run of the same path (seconds of training, untrained-looking output).
+DEMO_PROFILES: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
+    "small": ({"prior_steps": 1400, "prior_time_s": 300.0, "encoder_time_s": 45.0}, {"max_steps": 40, "bf16": True}),
+    "tiny": ({}, {"max_steps": 2, "pair_steps": 10, "batch_size": 4}),
+}
 
 
 @dataclass
@@ -62,20 +73,32 @@ def demo_styles(corpus: Path) -> list[StyleSpec]:
     return specs
 
 
-def demo_config(corpus: Path, run_dir: Path, method: str = "stats") -> RunConfig:
+def demo_config(corpus: Path, run_dir: Path, base_models: Path, method: str = "onthefly", size: str = "small") -> RunConfig:
+    """The demo run: every neutral clip of the corpus in every demo style."""
+    if method not in DEMO_METHODS:
+        raise MotionDataError("demo --method", f"unknown method {method!r} (choose from {', '.join(DEMO_METHODS)})")
+    if size not in DEMO_PROFILES:
+        raise MotionDataError("demo --size", f"unknown size {size!r} (choose from {', '.join(DEMO_PROFILES)})")
+    pretrain, params = DEMO_PROFILES[size]
     return RunConfig.model_validate({
         "corpus": {"path": corpus, "filters": {"source_styles": ["neutral"], "min_frames": 40, "max_frames": 199}},
         "styles": [s.model_dump() for s in demo_styles(corpus)],
-        "method": {"name": method},
-        "compute": {"num_cpus": 2, "batch_size": 32, "unit_size": 128},
+        "method": {"name": method, "params": params if method == "onthefly" else {}},
+        "base_models": {"path": base_models, "size": size, "pretrain": pretrain},
+        # pre-training and fine-tunes take both cores (one task at a time); transfers one core each, two at a time
+        "compute": {"num_cpus": 2, "finetune_cpus": 2, "transfer_cpus": 1, "batch_size": 32, "unit_size": 128},
         "output": run_dir,
         "seed": DEMO_SEED,
     })  # fmt: skip
 
 
-def run_demo(out: Path, clips: int = 1000, progress: RunProgress | None = None) -> DemoResult:
-    """Corpus -> run -> HumanML3D export under ``out``; every step skipped when already complete."""
+def run_demo(
+    out: Path, clips: int = 1000, progress: RunProgress | None = None, base_models: Path | None = None,
+    method: str = "onthefly", size: str = "small",
+) -> DemoResult:  # fmt: skip
+    """Corpus -> base models -> run -> HumanML3D export under ``out``; every step skipped when already complete."""
     corpus = ensure_corpus(out / "corpus", clips)
-    summary = execute_run(demo_config(corpus, out / "run"), progress=progress)
+    config = demo_config(corpus, out / "run", base_models or out / "base_models", method, size)
+    summary = execute_run(config, progress=progress)
     exported = export_run(summary.run_dir, out / "expanded")
     return DemoResult(corpus=corpus, run=summary, export=exported)

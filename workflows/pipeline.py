@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
+from pydantic import ValidationError
 
 from augment.clip import MotionClip
 from augment.corpus import HumanML3DReader, Reject, detect_format, open_corpus, write_rejects
@@ -83,6 +84,20 @@ def check_config(config: RunConfig) -> None:
             if source.suffix.lower() in (".npy", ".bvh") and not source.is_file():
                 raise MotionDataError(f"config styles[{i}].examples[{j}].source", f"style example file {source} not found")
     validate_method_params(config.method.name, config.method.params)
+    if needs_base_models(config.method.name) and config.base_models.pretrain:
+        pretrain_config(config)
+
+
+def pretrain_config(config: RunConfig) -> Any:
+    """The pre-training config of the run's base models: the size's preset plus ``base_models.pretrain``."""
+    from augment.pretrain import PretrainConfig
+
+    try:
+        return PretrainConfig.for_size(config.base_models.size, seed=config.seed, **config.base_models.pretrain)
+    except ValidationError as err:
+        first = err.errors()[0]
+        field = ".".join(str(p) for p in first["loc"])
+        raise MotionDataError(f"config base_models.pretrain.{field}", first["msg"]) from None
 
 
 # ---- corpus access -------------------------------------------------------------------------------
@@ -275,6 +290,8 @@ class BaseModelsStage:
 
     def run(self) -> str:
         target = self.target()
+        if self.config.base_models.path is not None and (target / "base.json").is_file():
+            return str(target)  # the user's own base models, used as they are
         if not self.config.base_models.pretrain_if_missing:
             if not target.is_dir():
                 raise MotionDataError("config base_models.path", f"{target} not found and pretrain_if_missing is false")
@@ -286,8 +303,25 @@ class BaseModelsStage:
                 raise
             reason = f"{target} not found and this installation cannot pre-train base models (no augment.pretrain)"
             raise MotionDataError("config base_models.path", reason) from None
-        size = self.config.base_models.size
-        return str(ensure_base_models(self.config.corpus.path, target, size, self.config.seed))
+        config = pretrain_config(self.config)
+        progress = PretrainLog()
+        return str(ensure_base_models(self.config.corpus.path, target, config.size, config.seed, progress, config))
+
+
+class PretrainLog:
+    """Pre-training progress as a line per stage every 10% (Ray forwards a task's stdout to the driver)."""
+
+    def __init__(self) -> None:
+        self.started = time.perf_counter()
+        self.last: dict[str, int] = {}
+
+    def __call__(self, stage: str, step: int, total: int, metrics: dict[str, float]) -> None:
+        tenth = min(10, step * 10 // max(total, 1))
+        if tenth <= self.last.get(stage, 0) and step != 1:
+            return
+        self.last[stage] = tenth
+        loss = f" loss {metrics['loss']:.4f}" if "loss" in metrics else ""
+        print(f"pre-training {stage}: {step}/{total}{loss} ({time.perf_counter() - self.started:.0f} s)", flush=True)
 
 
 def load_examples(style: StyleSpec, config: RunConfig) -> list[MotionClip]:

@@ -36,6 +36,7 @@ from torch import Tensor, nn
 from augment.base_models import BASE_JSON, PRIOR, BaseModels, load_module
 from augment.clip import MotionClip
 from augment.corpus.rejects import Reject
+from augment.cpu import bf16_autocast
 from augment.diffusion import (
     InpaintSpec,
     NoiseSchedule,
@@ -100,7 +101,7 @@ class OnTheFlyParams(BaseModel):
         "skip", description="L_s pool: drop corpus clips whose captions name a style, or neutralise them (slow: DDPM from G)."
     )
     min_frames: int = 20
-    bf16: bool = False
+    bf16: bool | None = Field(None, description="bf16 autocast on CPU; None = where the CPU has bf16 units.")
     seed: int = 0
 
 
@@ -237,15 +238,20 @@ class MotionBatch:
         return InpaintSpec(self.x if reference is None else reference, list(channels), frames=self.mask)
 
 
-def _autocast(bf16: bool) -> torch.autocast:
-    return torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16)
+def _autocast(bf16: bool | None) -> torch.autocast:
+    return bf16_autocast(bf16)
+
+
+def seeded_generator(seed: int) -> torch.Generator:
+    """A generator for any integer seed: the workflow derives 64-bit seeds, torch takes them below 2**63."""
+    return torch.Generator().manual_seed(seed % (1 << 63))
 
 
 def clip_noise(shape: Sequence[int], clip_ids: Sequence[str], seed: int) -> Tensor:
     """Initial noise drawn per clip from (seed, clip id): a clip's output does not depend on its batch mates."""
     rows = []
     for clip_id in clip_ids:
-        generator = torch.Generator().manual_seed(seed * 1_000_003 + zlib.crc32(clip_id.encode("utf-8")))
+        generator = seeded_generator(seed * 1_000_003 + zlib.crc32(clip_id.encode("utf-8")))
         rows.append(torch.randn(tuple(shape[1:]), generator=generator))
     return torch.stack(rows)
 
@@ -392,7 +398,7 @@ def finetune(
     The copy runs in eval mode: the loss follows a deterministic DDIM path, and training-time text dropout would
     spend the style example on the unconditional branch.
     """
-    generator = torch.Generator().manual_seed(params.seed)
+    generator = seeded_generator(params.seed)
     model = copy.deepcopy(base.prior).eval()
     optimizer = torch.optim.AdamW(_trainable(model, params), lr=params.lr, weight_decay=0.0)
     use_s = params.lambda_s > 0 and len(pool) > 0
@@ -529,7 +535,7 @@ class OnTheFlyModel:
         if not any(j.styled for j in jobs):
             return batch
         embed = self.base.text_encoder.encode([neutral_text(_caption_text(j.clip), self.vocab) for j in jobs])
-        twins = neutral_twins(self.base.prior, batch, embed, self.params, torch.Generator().manual_seed(seed))
+        twins = neutral_twins(self.base.prior, batch, embed, self.params, seeded_generator(seed))
         keep = torch.tensor([j.styled for j in jobs])[:, None, None] & batch.mask[..., None]
         return MotionBatch(torch.where(keep, twins, batch.x), batch.mask, batch.lengths)
 
@@ -659,6 +665,11 @@ class OnTheFlyMethod(StyleTransferMethod):
         """The registry's hook: a bad parameter is a config error before the run starts."""
         return parse_params(params).model_dump()
 
+    @classmethod
+    def from_params(cls, params: dict[str, Any]) -> OnTheFlyMethod:
+        """The registry's factory: an instance from a config's (validated) params."""
+        return cls(parse_params(params))
+
     def __init__(self, params: OnTheFlyParams | dict[str, Any] | None = None, text_encoder: TextEncoder | None = None) -> None:
         self.params = params if isinstance(params, OnTheFlyParams) else parse_params(params)
         validate_params(self.params)
@@ -672,7 +683,7 @@ class OnTheFlyMethod(StyleTransferMethod):
         if not examples:
             raise MotionDataError(f"style {style.name!r}", "no example clips")
         params = self.params.model_copy(update={"seed": seed})  # the caller's seed wins over the config's
-        generator = torch.Generator().manual_seed(params.seed)
+        generator = seeded_generator(params.seed)
         start = time.perf_counter()
         pairs = make_pairs(base, examples, params, generator, style_vocab(style.words, style.name))
         pool, skipped = make_pool(base, corpus, style, params, generator)  # also sets the step count when lambda_s=0

@@ -276,9 +276,11 @@ def _root_path(body: np.ndarray, m: ContentMotion, spec: ClipSpec) -> tuple[np.n
     return root, heading
 
 
-def content_motion(spec: ClipSpec) -> tuple[ContentMotion, np.ndarray]:
-    """Joint angles for a spec (content + style posture + flat feet) and the phase clock."""
-    st = style_params(spec.style, spec.intensity)
+def content_motion(spec: ClipSpec, style: StyleParams | None = None) -> tuple[ContentMotion, np.ndarray]:
+    """Joint angles for a spec (content + style posture + flat feet) and the phase clock.
+
+    ``style`` replaces the spec's style numbers (e.g. a style without its timing changes)."""
+    st = style or style_params(spec.style, spec.intensity)
     phase, rate = phase_clock(spec, st)
     ctx = ContentContext(
         phase=phase, rate=rate, fps=spec.fps, style=st, amplitude=spec.amplitude, speed=spec.speed,
@@ -290,9 +292,9 @@ def content_motion(spec: ClipSpec) -> tuple[ContentMotion, np.ndarray]:
     return m, phase
 
 
-def render(spec: ClipSpec) -> RenderedClip:
-    """Render a spec to world joint positions (float32, floor at y = 0)."""
-    m, _ = content_motion(spec)
+def render(spec: ClipSpec, style: StyleParams | None = None) -> RenderedClip:
+    """Render a spec to world joint positions (float32, floor at y = 0); ``style`` overrides its style numbers."""
+    m, _ = content_motion(spec, style)
     body = forward_kinematics(m.angles, bone_offsets(spec.bone_scale))
     height = _root_height(body, m)
     root_xz, heading = _root_path(body, m, spec)
