@@ -1,7 +1,7 @@
 """On-the-fly style transfer against the synthetic corpus's paired ground truth, plus fine-tune time and throughput.
 
 Usage: python bench/bench_onthefly.py [--work /tmp/otf-bench] [--size small] [--n-clips 600] [--style proud]
-       [--example-content walk] [--n-content 36] [--lora-rank 8] [--threads 2] [--random-base] [--quick]
+       [--example-content walk] [--n-content 36] [--lora-rank 4] [--threads 2] [--random-base] [--quick]
        [--skip ablation,lora,throughput]
 
 Protocol: fine-tune on ONE example clip of ``--style`` (a ``--example-content`` clip of the corpus), then transfer
@@ -230,7 +230,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--style", default="proud")
     parser.add_argument("--example-content", default="walk")
     parser.add_argument("--n-content", type=int, default=36)
-    parser.add_argument("--lora-rank", type=int, default=8)
+    parser.add_argument("--lora-rank", type=int, default=4)
     parser.add_argument("--threads", type=int, default=int(os.environ.get("MOTIONAUG_TORCH_THREADS", "2")))
     parser.add_argument("--random-base", action="store_true")
     parser.add_argument("--base-dir", type=Path, default=None, help="use this base-models folder as it is")

@@ -19,6 +19,7 @@ Prints one JSON object (also written to ``work/bench_onthefly_bandai.json``).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import time
@@ -53,8 +54,8 @@ def bandai_clips(root: Path) -> list[Any]:
 
 
 def bandai_judges(clips: list[Any], seed: int = 0) -> dict[str, tuple[Any, list[str]]]:
-    """Content and style classifiers trained on every Bandai clip (joints of the retargeted t2m skeleton)."""
-    joints, mask = pad_batch([_joints(c.motion) for c in clips])
+    """Content and style classifiers trained on every Bandai clip's first 196 frames (retargeted t2m joints)."""
+    joints, mask = pad_batch([_joints(c.motion[:196]) for c in clips])
     judges = {}
     for attr in ("content", "style"):
         names = sorted({getattr(c, attr) for c in clips})
@@ -98,7 +99,9 @@ def main() -> None:
         StyleExample(source=example.id, description=f"a person walks {words.adverb or words.phrases[0]}")])  # fmt: skip
     examples = load_style_examples(spec, {example.id: example})
     _, synthetic_content = pick_clips(synthetic, "neutral", args.example_content, args.n_content)
-    real_content = [c for c in real if c.style == "normal" and c.content != args.example_content]
+    # takes run up to a minute; transfer (and the evaluators) take HumanML3D-length clips: the first 196 frames
+    real_content = [dataclasses.replace(c, motion=c.motion[:196]) for c in real
+                    if c.style == "normal" and c.content != args.example_content]  # fmt: skip
     pool = [c for c in synthetic if c.style == "neutral" and c not in synthetic_content]
 
     method = OnTheFlyMethod(parse_params(json.loads(args.params)))

@@ -507,8 +507,9 @@ class OnTheFlyModel:
         """Validate a clip and revise its captions; any ``MotionDataError`` here rejects just this clip."""
         source = f"clip {clip.id}"
         motion = check_motion(clip.motion, source, feature_dim=self.base.normalizer.dim, min_frames=self.params.min_frames)
-        if motion.shape[0] + 1 > self.model.config.max_len:
-            raise MotionDataError(source, f"{motion.shape[0]} frames exceed the model's {self.model.config.max_len - 1}")
+        longest = min(self.model.config.max_len, self.base.motion_encoder.config.max_len) - 1  # +1 token each
+        if motion.shape[0] > longest:
+            raise MotionDataError(source, f"{motion.shape[0]} frames exceed the models' {longest}")
         clip_seed = seed + zlib.crc32(clip.id.encode("utf-8"))
         captions = revised_texts(clip, self.spec.words, self.params.caption_variants, clip_seed, self.vocab)
         styled = self.params.neutralise_content and carries_style(_caption_text(clip), self.vocab)
