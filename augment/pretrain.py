@@ -37,7 +37,7 @@ from augment.corpus.humanml3d import HumanML3DReader
 from augment.diffusion import NoiseSchedule, masked_mse, q_sample, sample_timesteps
 from schemas.errors import MotionDataError
 from augment.evaluation_inputs import features_to_joints, pad_batch
-from augment.cpu import bf16_autocast, cpu_has_bf16
+from augment.cpu import bf16_autocast
 from augment.evaluator_training import classifier_accuracy, fit_classifier
 from augment.features import Normalizer, compute_mean_std
 from augment.geometric_losses import geometric_losses
@@ -116,9 +116,6 @@ class PretrainConfig(BaseModel):
         """Hash of every field that changes the trained weights."""
         relevant = self.model_dump(exclude={"threads", "checkpoint_every", "log_every"})
         return hashlib.sha256(json.dumps(relevant, sort_keys=True).encode()).hexdigest()[:16]
-
-    def use_bf16(self) -> bool:
-        return cpu_has_bf16() if self.bf16 is None else self.bf16
 
 
 # ---- corpus identity ------------------------------------------------------------------------
@@ -298,10 +295,6 @@ def _train_loop(
     run.log(stage, loop.step, {**final, "elapsed_s": loop.elapsed, "done": 1.0})
 
 
-def _autocast(enabled: bool) -> Any:
-    return bf16_autocast(enabled)
-
-
 # ---- stage a: prior -----------------------------------------------------------------------------
 
 
@@ -325,7 +318,7 @@ def prior_loss(
     t = sample_timesteps(x0.shape[0], schedule, generator)
     noise = torch.randn(x0.shape, generator=generator)
     x_t = q_sample(schedule, x0, t, noise)
-    with _autocast(run.config.use_bf16()):
+    with bf16_autocast(run.config.bf16):
         x0_hat = prior(x_t, schedule.timesteps[t], batch.text_embed, mask)
     x0_hat = x0_hat.float()
     mse = masked_mse(x0_hat, x0, mask).mean()
@@ -351,7 +344,7 @@ def held_out_prior_mse(prior: MDM, schedule: NoiseSchedule, run: Run, seed: int 
     for batch in iter_batches(run.test, run.config.batch_size, run.config.max_frames):
         t = sample_timesteps(batch.motion.shape[0], schedule, generator)
         x_t = q_sample(schedule, batch.motion, t, torch.randn(batch.motion.shape, generator=generator))
-        with _autocast(run.config.use_bf16()):
+        with bf16_autocast(run.config.bf16):
             x0_hat = prior(x_t, schedule.timesteps[t], batch.text_embed, batch.mask, force_uncond=False).float()
         total += float(masked_mse(x0_hat, batch.motion, batch.mask).sum())
         count += batch.motion.shape[0]
@@ -412,7 +405,7 @@ def train_motion_encoder(run: Run, prior: MDM) -> MotionEncoder:
     optimizer = torch.optim.AdamW(trainable, lr=cfg.encoder_lr, weight_decay=cfg.weight_decay)
 
     def loss_fn(batch: Batch, _: torch.Generator) -> tuple[Tensor, dict[str, float]]:
-        with _autocast(cfg.use_bf16()):
+        with bf16_autocast(cfg.bf16):
             motion = encoder(batch.motion, batch.mask)
         return semantic_loss(motion.float(), batch.text_embed), {}
 

@@ -40,7 +40,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from augment.bvh import BvhMotion, read_bvh
-from schemas.errors import MotionDataError
+from schemas.errors import MotionDataError, first_error
 from schemas.skeleton import get_skeleton
 
 UpAxis = Literal["+x", "-x", "+y", "-y", "+z", "-z"]
@@ -119,9 +119,8 @@ class JointMap(BaseModel):
         try:
             return cls.model_validate(data)
         except ValidationError as err:
-            first = err.errors()[0]
-            where = ".".join(str(p) for p in first["loc"]) or "map"
-            raise MotionDataError(source, f"bad joint map: {where}: {first['msg']}") from None
+            where, message = first_error(err, "map")
+            raise MotionDataError(source, f"bad joint map: {where}: {message}") from None
 
 
 def _sides(side: str, letter: str) -> dict[str, str | dict[str, float]]:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pydantic import ValidationError
+
 
 class MotionDataError(ValueError):
     """A clip, file or config that cannot be used, with where it came from and why.
@@ -13,3 +15,9 @@ class MotionDataError(ValueError):
         self.source = str(source)
         self.reason = reason
         super().__init__(f"{self.source}: {reason}")
+
+
+def first_error(err: ValidationError, whole: str) -> tuple[str, str]:
+    """(dotted field path, message) of a pydantic error's first problem; ``whole`` when it is about the whole."""
+    first = err.errors()[0]
+    return ".".join(str(part) for part in first["loc"]) or whole, first["msg"]

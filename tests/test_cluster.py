@@ -77,7 +77,6 @@ def _taken(port: int) -> bool:
 @pytest.fixture(scope="module")
 def cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """Head + one worker node (1 CPU each); yields the dashboard URL; stops only these processes."""
-    pytest.importorskip("ray")
     # Not under pytest's basetemp: a concurrent pytest session may prune it while Ray's sockets live there.
     state = Path(tempfile.mkdtemp(prefix="motionaug-cluster-"))
     env = cluster_env(state)

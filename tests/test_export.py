@@ -24,7 +24,8 @@ STYLES = [
 
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    ray = pytest.importorskip("ray")
+    import ray
+
     from augment.synth import generate_corpus
     from workflows.ray_executor import execute_run
 

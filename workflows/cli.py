@@ -24,7 +24,7 @@ from rich.progress import (
 )
 from rich.table import Table
 
-from schemas.errors import MotionDataError
+from schemas.errors import MotionDataError, first_error
 
 if TYPE_CHECKING:
     from schemas.run_config import RunConfig
@@ -61,9 +61,8 @@ def usage_errors() -> Iterator[None]:
 
 def _one_line(err: Exception) -> str:
     if isinstance(err, ValidationError):
-        first = err.errors()[0]
-        where = ".".join(str(part) for part in first["loc"]) or err.title
-        return f"{err.title}: {where}: {first['msg']}"
+        where, message = first_error(err, err.title)
+        return f"{err.title}: {where}: {message}"
     return str(err).splitlines()[0]
 
 

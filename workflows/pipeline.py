@@ -33,7 +33,7 @@ from pydantic import ValidationError
 from augment.clip import MotionClip
 from augment.corpus import HumanML3DReader, Reject, detect_format, open_corpus, write_rejects
 from augment.corpus.parquet import parquet_files, table_to_clips
-from schemas.errors import MotionDataError
+from schemas.errors import MotionDataError, first_error
 from augment.export import split_of_ids
 from augment.methods.base import StyleModel, TransferOutput
 from augment.methods.registry import create_method, needs_base_models, validate_method_params
@@ -95,9 +95,8 @@ def pretrain_config(config: RunConfig) -> Any:
     try:
         return PretrainConfig.for_size(config.base_models.size, seed=config.seed, **config.base_models.pretrain)
     except ValidationError as err:
-        first = err.errors()[0]
-        field = ".".join(str(p) for p in first["loc"])
-        raise MotionDataError(f"config base_models.pretrain.{field}", first["msg"]) from None
+        field, message = first_error(err, "")
+        raise MotionDataError(f"config base_models.pretrain.{field}", message) from None
 
 
 # ---- corpus access -------------------------------------------------------------------------------
@@ -296,13 +295,8 @@ class BaseModelsStage:
             if not target.is_dir():
                 raise MotionDataError("config base_models.path", f"{target} not found and pretrain_if_missing is false")
             return str(target)
-        try:
-            from augment.pretrain import ensure_base_models
-        except ModuleNotFoundError as err:
-            if err.name != "augment.pretrain":
-                raise
-            reason = f"{target} not found and this installation cannot pre-train base models (no augment.pretrain)"
-            raise MotionDataError("config base_models.path", reason) from None
+        from augment.pretrain import ensure_base_models
+
         config = pretrain_config(self.config)
         progress = PretrainLog()
         return str(ensure_base_models(self.config.corpus.path, target, config.size, config.seed, progress, config))

@@ -49,7 +49,7 @@ from augment.diffusion import (
     start_step_for,
 )
 from augment.diffusion.schedule import NUM_TRAIN_TIMESTEPS
-from schemas.errors import MotionDataError
+from schemas.errors import MotionDataError, first_error
 from augment.evaluation_inputs import features_to_joints, pad_batch
 from augment.features import feature_slices
 from augment.io import atomic_path, atomic_write_text, read_json_model
@@ -145,9 +145,7 @@ def parse_params(data: dict[str, Any] | None = None, **overrides: Any) -> OnTheF
     try:
         params = OnTheFlyParams.model_validate({**(data or {}), **overrides})
     except ValidationError as err:
-        first = err.errors()[0]
-        field = ".".join(str(p) for p in first["loc"]) or "params"
-        raise _fail(field, first["msg"]) from None
+        raise _fail(*first_error(err, "params")) from None
     return validate_params(params)
 
 
@@ -238,10 +236,6 @@ class MotionBatch:
         return InpaintSpec(self.x if reference is None else reference, list(channels), frames=self.mask)
 
 
-def _autocast(bf16: bool | None) -> torch.autocast:
-    return bf16_autocast(bf16)
-
-
 def seeded_generator(seed: int) -> torch.Generator:
     """A generator for any integer seed: the workflow derives 64-bit seeds, torch takes them below 2**63."""
     return torch.Generator().manual_seed(seed % (1 << 63))
@@ -265,7 +259,7 @@ def neutral_twins(
     """
     model_fn = bind_model(prior, text_embed, batch.mask)
     start = start_step_for(params.pair_noise_step, params.pair_steps)
-    with torch.no_grad(), _autocast(params.bf16):
+    with torch.no_grad(), bf16_autocast(params.bf16):
         return ddpm_sample(
             model_fn, batch.x.shape, steps=params.pair_steps, start_step=start, x_start=batch.x,
             inpaint=batch.inpaint(trajectory_channels(params.trajectory)),
@@ -308,7 +302,7 @@ def reconstruction_loss(model: nn.Module, pairs: StylePairs, params: OnTheFlyPar
     noise = torch.randn(styled.x.shape, generator=generator)
     t = torch.full((styled.x.shape[0],), n_run - 1, dtype=torch.long)
     y_k = q_sample(sched, pairs.neutral, t, noise)
-    with _autocast(params.bf16):
+    with bf16_autocast(params.bf16):
         preds = ddim_path(
             bind_model(model, pairs.text_embed, styled.mask), y_k, n_run, steps=params.ddim_steps,
             inpaint=styled.inpaint(trajectory_channels(params.trajectory)),
@@ -322,7 +316,7 @@ def transferred_path_end(
     """The differentiable DDIM transfer of ``batch`` from K (trajectory inpainted), the last x0 of the path."""
     sched, n_run = _schedule_index(params)
     t = torch.full((batch.x.shape[0],), n_run - 1, dtype=torch.long)
-    with _autocast(params.bf16):
+    with bf16_autocast(params.bf16):
         preds = ddim_path(
             bind_model(model, text_embed, batch.mask), q_sample(sched, batch.x, t, noise), n_run,
             steps=params.ddim_steps, inpaint=batch.inpaint(trajectory_channels(params.trajectory)),
@@ -545,7 +539,7 @@ class OnTheFlyModel:
         cond = self.base.text_encoder.encode([j.captions[0].text for j in jobs])
         n_run = start_step_for(self.params.transfer_noise_step, self.params.ddim_steps)
         noise = clip_noise(content.x.shape, [j.clip.id for j in jobs], seed)
-        with torch.no_grad(), _autocast(self.params.bf16):
+        with torch.no_grad(), bf16_autocast(self.params.bf16):
             out = ddim_sample(
                 bind_model(self.model, cond, content.mask), content.x.shape, steps=self.params.ddim_steps,
                 start_step=n_run, x_start=content.x, noise=noise,
