@@ -63,7 +63,7 @@ class BaseModelsInfo(BaseModel):
 
 @dataclass
 class BaseModels:
-    """Loaded base models. ``text_encoder`` is built on first use (loading MiniLM takes seconds)."""
+    """Loaded base models. ``text_encoder`` is built on first use (not every caller needs it)."""
 
     info: BaseModelsInfo
     prior: MDM

@@ -21,6 +21,8 @@ from typing import Any, Literal, Protocol, runtime_checkable
 import torch
 import torch.nn.functional as F
 
+from models.minilm import SentenceEncoder
+
 DEFAULT_CACHE_SIZE = 50_000
 CLIP_DIM = 512
 
@@ -116,7 +118,11 @@ def minilm_model_dir() -> Path:
 
 
 class MiniLMTextEncoder(CachedTextEncoder):
-    """sentence-transformers all-MiniLM-L6-v2: 384-d, L2-normalised, loaded only from a local folder."""
+    """all-MiniLM-L6-v2: 384-d, L2-normalised, loaded only from a local folder.
+
+    Runs our own PyTorch BERT (``models.minilm``) rather than sentence-transformers, whose import costs every
+    Ray worker seconds of CPU; the embeddings are the same (checked against a sentence-transformers fixture).
+    """
 
     def __init__(
         self,
@@ -126,30 +132,21 @@ class MiniLMTextEncoder(CachedTextEncoder):
         cache_size: int = DEFAULT_CACHE_SIZE,
     ) -> None:
         super().__init__(cache_size)
+        if batch_size < 1:
+            raise ValueError(f"batch_size: must be >= 1, got {batch_size}")
         path = Path(model_dir) if model_dir is not None else minilm_model_dir()
-        for needed in ("config.json", "model.safetensors", "modules.json"):
+        for needed in ("config.json", "model.safetensors", "tokenizer.json"):
             if not (path / needed).is_file():
                 raise FileNotFoundError(f"{path}: MiniLM model folder lacks {needed} (the encoder never downloads)")
-        from sentence_transformers import SentenceTransformer  # slow import: only when an encoder is built
-
-        self._model = SentenceTransformer(str(path), device=device, local_files_only=True)
-        self._model.eval()
+        self._model = SentenceEncoder(path, device=device)
         self._batch_size = batch_size
-        dim_of = getattr(self._model, "get_embedding_dimension", None) or self._model.get_sentence_embedding_dimension
-        self._dim = int(dim_of())  # renamed in sentence-transformers 6
 
     @property
     def dim(self) -> int:
-        return self._dim
+        return self._model.dim
 
     def _encode_uncached(self, texts: list[str]) -> torch.Tensor:
-        return self._model.encode(
-            texts,
-            batch_size=self._batch_size,
-            convert_to_tensor=True,
-            normalize_embeddings=True,
-            show_progress_bar=False,
-        )
+        return self._model.encode(texts, batch_size=self._batch_size)
 
 
 ClipBackend = Literal["auto", "clip", "open_clip"]

@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
+from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 import torch.nn as nn
@@ -11,7 +15,9 @@ import torch.nn.functional as F
 
 from augment.evaluation_inputs import pad_batch
 from augment.evaluator_training import classifier_accuracy, classifier_features, fit_classifier
+from conftest import FIXTURES, REPO
 from models.evaluators import content_classifier, joints_to_evaluator_input, make_classifier, style_classifier
+from models.minilm import BertEncoder, load_tokenizer
 from models.motion_encoder import MotionEncoder, MotionEncoderConfig, semantic_loss
 from models.text_encoder import (
     CachedTextEncoder,
@@ -19,6 +25,7 @@ from models.text_encoder import (
     MiniLMTextEncoder,
     TextEncoder,
     make_text_encoder,
+    minilm_model_dir,
     pick_clip_backend,
 )
 
@@ -113,6 +120,72 @@ def test_clip_encoder_errors_name_what_is_missing(tmp_path) -> None:
 def test_minilm_missing_folder_is_a_clear_error(tmp_path) -> None:
     with pytest.raises(FileNotFoundError, match="lacks config.json"):
         MiniLMTextEncoder(model_dir=tmp_path)
+
+
+def minilm_reference() -> tuple[list[str], torch.Tensor]:
+    """Captions and their sentence-transformers 6.2.0 embeddings (see tests/fixtures/README.md)."""
+    data = np.load(FIXTURES / "minilm_reference.npz")
+    return [str(t) for t in data["texts"]], torch.from_numpy(data["embeddings"])
+
+
+def test_minilm_reproduces_sentence_transformers() -> None:
+    texts, expected = minilm_reference()
+    for batch_size in (64, 3):  # one padded batch, and several
+        got = MiniLMTextEncoder(batch_size=batch_size, cache_size=0).encode(texts)
+        torch.testing.assert_close(got, expected, rtol=0, atol=1e-5)  # measured max |diff|: 2.4e-7
+
+
+def test_minilm_truncates_to_256_tokens_like_sentence_transformers() -> None:
+    texts, _ = minilm_reference()
+    longest = max(texts, key=len)
+    tokenizer = load_tokenizer(minilm_model_dir() / "tokenizer.json", max_length=256)
+    ids = tokenizer.encode(longest).ids
+    assert len(ids) == 256 and ids[-1] == tokenizer.token_to_id("[SEP]")  # so the fixture test covers truncation
+    assert len(tokenizer.encode("a person walks").ids) == 5  # no padding from tokenizer.json's own settings
+
+
+def test_minilm_padding_does_not_leak() -> None:
+    texts = ["walk", "a person walks forward and then turns around.", "A MAN JUMPS UP AND DOWN!!!", ""]
+    encoder = MiniLMTextEncoder(cache_size=0)
+    batch = encoder.encode(texts)
+    for text, row in zip(texts, batch):
+        torch.testing.assert_close(encoder.encode([text])[0], row, rtol=0, atol=1e-6)
+
+
+def test_bert_encoder_ignores_padded_tokens() -> None:
+    model = BertEncoder.from_pretrained(minilm_model_dir())
+    ids = torch.tensor([[101, 1037, 2711, 7365, 102, 0, 0], [101, 1037, 2711, 7365, 102, 2342, 999]])
+    mask = torch.tensor([[1, 1, 1, 1, 1, 0, 0], [1, 1, 1, 1, 1, 0, 0]])
+    with torch.inference_mode():
+        hidden = model(ids, mask)
+        alone = model(ids[:1, :5], mask[:1, :5])
+    assert hidden.shape == (2, 7, 384)
+    torch.testing.assert_close(hidden[0, :5], hidden[1, :5], rtol=0, atol=1e-5)  # pad ids differ, states do not
+    torch.testing.assert_close(hidden[0, :5], alone[0], rtol=0, atol=1e-5)
+
+
+def test_bert_encoder_loads_strictly(tmp_path: Path) -> None:
+    from safetensors.torch import load_file, save_file
+
+    folder = minilm_model_dir()
+    weights = load_file(str(folder / "model.safetensors"))
+    del weights["encoder.layer.5.output.dense.bias"]
+    (tmp_path / "config.json").write_text((folder / "config.json").read_text())
+    save_file(weights, str(tmp_path / "model.safetensors"))
+    with pytest.raises(RuntimeError, match="encoder.layer.5.output.dense.bias"):
+        BertEncoder.from_pretrained(tmp_path)
+
+
+def test_minilm_does_not_import_transformers() -> None:
+    code = (
+        "import sys\n"
+        "import models.text_encoder as te\n"
+        "te.MiniLMTextEncoder().encode(['a person walks'])\n"
+        "print(sorted(m for m in sys.modules if m.split('.')[0] in ('transformers', 'sentence_transformers')))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]"
 
 
 # --- motion encoder ----------------------------------------------------------------------------
