@@ -3,9 +3,11 @@
 The run is done once in full (plan, fine-tunes, transfers). Then, for each worker count (an embedded Ray cluster
 with that many CPUs, one CPU and one torch thread per transfer task), its shards are removed and the run is
 resumed: only the transfer stage runs again, with the style artefacts already made, so the figures are the
-transfer stage's alone. Reported per worker count: throughput (stylized clips per second), Ray overhead per task
-as a fraction of task time (stage wall time x workers minus in-task time, over in-task time; plus a no-op task
-round trip), the artefact load time as a fraction of a unit, and peak resident memory per worker.
+transfer stage's alone. Each Ray is started and its workers warmed first (one concurrent task per worker; the
+time is reported as ``worker_start_s``), as the fine-tune tasks do in a real run. Reported per worker count:
+throughput (stylized clips per second), Ray overhead per task as a fraction of task time (stage wall time x
+workers minus in-task time, over in-task time; plus a no-op task round trip), the artefact load time as a
+fraction of a unit, and peak resident memory per worker.
 
     .venv/bin/python bench/bench_workflow.py --method onthefly --base-models /tmp/t2m-full/base --clips 512
     .venv/bin/python bench/bench_workflow.py --clips 512 --method stats
@@ -50,6 +52,26 @@ def noop_round_trip(n: int = 50) -> float:
     return statistics.median(times)
 
 
+def warm_workers(workers: int) -> tuple[float, int]:
+    """Start every worker process and import the stage code in it: (seconds, distinct worker processes).
+
+    In a real run the fine-tune tasks start the workers before any transfer; these transfer-only reruns would
+    otherwise time the second worker's start-up (its process and the torch import) as transfer time.
+    """
+    import ray
+
+    @ray.remote(num_cpus=1)
+    def ready() -> int:
+        import workflows.pipeline  # noqa: F401 - what the setup hook imports; a no-op when it already ran
+
+        time.sleep(0.5)  # hold the CPU so that each call lands on its own worker
+        return os.getpid()
+
+    start = time.perf_counter()
+    pids = ray.get([ready.remote() for _ in range(workers)])
+    return time.perf_counter() - start, len(set(pids))
+
+
 def run_config(corpus: Path, out: Path, workers: int, args: argparse.Namespace) -> Any:
     from schemas.run_config import load_run_config
 
@@ -64,16 +86,18 @@ def run_config(corpus: Path, out: Path, workers: int, args: argparse.Namespace) 
     return load_run_config(None, args.set or [], data=data)
 
 
-def execute(config: Any, workers: int, force: bool = False) -> tuple[Any, float]:
-    """One run in a fresh embedded Ray of ``workers`` CPUs; the summary and a no-op round trip (s)."""
+def execute(config: Any, workers: int, force: bool = False, warm: bool = True) -> tuple[Any, dict[str, float]]:
+    """One run in a fresh embedded Ray of ``workers`` CPUs, workers started first; the summary and Ray timings."""
     import ray
 
-    from workflows.ray_executor import execute_run
+    from workflows.ray_executor import embedded_runtime_env, execute_run
 
-    ray.init(address="local", num_cpus=workers, include_dashboard=False, log_to_driver=False)
+    ray.init(address="local", num_cpus=workers, include_dashboard=False, log_to_driver=False,
+             runtime_env=embedded_runtime_env())  # fmt: skip
     try:
-        noop = noop_round_trip()
-        return execute_run(config, force=force), noop
+        warm_s, started = warm_workers(workers) if warm else (0.0, 0)
+        timings = {"worker_start_s": warm_s, "workers_started": started, "noop_round_trip_s": noop_round_trip()}
+        return execute_run(config, force=force), timings
     finally:
         ray.shutdown()
 
@@ -89,9 +113,9 @@ def drop_shards(run_dir: Path) -> None:
         path.unlink(missing_ok=True)
 
 
-def measure(config: Any, workers: int) -> dict[str, Any]:
+def measure(config: Any, workers: int, warm: bool) -> dict[str, Any]:
     drop_shards(config.output)
-    summary, noop = execute(config.model_copy(update={"compute": config.compute.model_copy(update={"num_cpus": workers})}), workers)
+    summary, ray_timings = execute(config.model_copy(update={"compute": config.compute.model_copy(update={"num_cpus": workers})}), workers, warm=warm)
     manifest = summary.manifest
     transfer = manifest.stages["transfer"]
     in_task = sum(s.seconds for s in manifest.shards)
@@ -102,7 +126,8 @@ def measure(config: Any, workers: int) -> dict[str, Any]:
         "transfer_stage_s": round(transfer.seconds, 2), "clips_per_s": round(manifest.rows / transfer.seconds, 2),
         "mean_task_s": round(in_task / max(len(manifest.shards), 1), 2),
         "ray_overhead_fraction": round(max(busy_wall - in_task, 0.0) / max(in_task, 1e-9), 4),
-        "noop_task_round_trip_ms": round(noop * 1000, 2),
+        "noop_task_round_trip_ms": round(ray_timings["noop_round_trip_s"] * 1000, 2),
+        "worker_start_s": round(ray_timings["worker_start_s"], 2), "workers_started": ray_timings["workers_started"],
         "load_fraction_of_unit": round(sum(s.load_seconds for s in manifest.shards) / max(in_task, 1e-9), 4),
         "peak_rss_mb_per_worker": round(max(s.peak_rss_mb for s in manifest.shards), 1),
     }  # fmt: skip
@@ -120,6 +145,7 @@ def main() -> None:
     parser.add_argument("--set", action="append", help="Config override key.sub=value (repeatable).")
     parser.add_argument("--work", type=Path, help="keep the runs here (default: a temporary folder)")
     parser.add_argument("--out", type=Path)
+    parser.add_argument("--cold", action="store_true", help="do not start the workers before timing the transfers")
     args = parser.parse_args()
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     from augment.synth import generate_corpus
@@ -139,7 +165,7 @@ def main() -> None:
             "batch_size": args.batch_size, "styles": len(STYLES), "cpu_count": os.cpu_count(),
             "corpus_s": round(corpus_s, 2), "full_run_s": round(time.perf_counter() - start, 1),
             "finetune_stage_s": round(first.manifest.stages["finetune"].seconds, 1),
-            "runs": [measure(config, w) for w in args.workers], "load": os.getloadavg(),
+            "runs": [measure(config, w, warm=not args.cold) for w in args.workers], "load": os.getloadavg(),
         }  # fmt: skip
     runs = results["runs"]
     if len(runs) > 1:
