@@ -41,9 +41,9 @@ def _check_hyper(rank: int, alpha: float, dropout: float, fan_in: int, fan_out: 
         raise MotionDataError(what, f"LoRA dropout {dropout} outside [0, 1)")
 
 
-def _init_pair(a: Tensor, b: Tensor) -> None:
+def _init_pair(a: Tensor, b: Tensor, generator: torch.Generator | None = None) -> None:
     """A like nn.Linear's default init (so the path has signal), B zero (so the delta starts at zero)."""
-    nn.init.kaiming_uniform_(a, a=math.sqrt(5))
+    nn.init.kaiming_uniform_(a, a=math.sqrt(5), generator=generator)
     nn.init.zeros_(b)
 
 
@@ -54,7 +54,10 @@ class LoRALinear(nn.Module):
     of calling the module; dropout acts only on the ``forward`` path (it is inactive in eval anyway).
     """
 
-    def __init__(self, base: nn.Linear, rank: int = 8, alpha: float = 16.0, dropout: float = 0.0) -> None:
+    def __init__(
+        self, base: nn.Linear, rank: int = 8, alpha: float = 16.0, dropout: float = 0.0,
+        generator: torch.Generator | None = None,
+    ) -> None:  # fmt: skip
         super().__init__()
         _check_hyper(rank, alpha, dropout, base.in_features, base.out_features, "LoRALinear")
         base.requires_grad_(False)
@@ -64,7 +67,7 @@ class LoRALinear(nn.Module):
         self.lora_B = nn.Parameter(torch.empty(base.out_features, rank, **kw))
         self.register_buffer("lora_scale", torch.tensor(alpha / rank, **kw))
         self.dropout = nn.Dropout(dropout)
-        _init_pair(self.lora_A, self.lora_B)
+        _init_pair(self.lora_A, self.lora_B, generator)
 
     @property
     def in_features(self) -> int:
@@ -104,7 +107,9 @@ class LoRALinear(nn.Module):
 class LoRAInProj(nn.Module):
     """Parametrization of MHA's packed (3E, E) ``in_proj_weight``: one rank-r adapter per q, k, v block."""
 
-    def __init__(self, embed_dim: int, rank: int, alpha: float, like: Tensor) -> None:
+    def __init__(
+        self, embed_dim: int, rank: int, alpha: float, like: Tensor, generator: torch.Generator | None = None
+    ) -> None:
         super().__init__()
         _check_hyper(rank, alpha, 0.0, embed_dim, embed_dim, "LoRAInProj")
         kw = {"dtype": like.dtype, "device": like.device}
@@ -112,20 +117,23 @@ class LoRAInProj(nn.Module):
         self.lora_B = nn.Parameter(torch.empty(3, embed_dim, rank, **kw))
         self.register_buffer("lora_scale", torch.tensor(alpha / rank, **kw))
         for i in range(3):
-            _init_pair(self.lora_A[i], self.lora_B[i])
+            _init_pair(self.lora_A[i], self.lora_B[i], generator)
 
     def forward(self, weight: Tensor) -> Tensor:
         delta = torch.bmm(self.lora_B, self.lora_A)  # (3, E, E): q, k, v updates
         return weight + self.lora_scale * delta.reshape(weight.shape)
 
 
-def _adapt_attention(mha: nn.MultiheadAttention, rank: int, alpha: float, dropout: float, name: str) -> list[str]:
+def _adapt_attention(
+    mha: nn.MultiheadAttention, rank: int, alpha: float, dropout: float, name: str, generator: torch.Generator | None
+) -> list[str]:
     """LoRA on the packed q/k/v projection (parametrization) and on ``out_proj`` (LoRALinear)."""
     if not mha._qkv_same_embed_dim or mha.in_proj_weight is None:
         raise MotionDataError(name, "LoRA supports attention with packed q/k/v (kdim == vdim == embed_dim) only")
     mha.in_proj_weight.requires_grad_(False)
-    parametrize.register_parametrization(mha, _IN_PROJ, LoRAInProj(mha.embed_dim, rank, alpha, mha.in_proj_weight))
-    mha.out_proj = LoRALinear(mha.out_proj, rank, alpha, dropout)  # type: ignore[assignment]
+    adapter = LoRAInProj(mha.embed_dim, rank, alpha, mha.in_proj_weight, generator)
+    parametrize.register_parametrization(mha, _IN_PROJ, adapter)
+    mha.out_proj = LoRALinear(mha.out_proj, rank, alpha, dropout, generator)  # type: ignore[assignment]
     return [f"{name}.{_IN_PROJ}", f"{name}.out_proj"]
 
 
@@ -158,8 +166,11 @@ def apply_lora(
     alpha: float = 16.0,
     targets: tuple[str, ...] = DEFAULT_TARGETS,
     dropout: float = 0.0,
+    generator: torch.Generator | None = None,
 ) -> list[str]:
     """Freeze ``model`` and add adapters to the targeted modules; returns the adapted names.
+
+    ``generator`` draws the A matrices (default: torch's global RNG); pass a seeded one for a reproducible artefact.
 
     A target matching an ``nn.MultiheadAttention`` adapts its q/k/v in-projection and ``out_proj``; one
     matching an ``nn.Linear`` wraps it; one matching a container adapts every Linear/MHA inside it.
@@ -174,9 +185,9 @@ def apply_lora(
     adapted: list[str] = []
     for name, module in todo.items():
         if isinstance(module, nn.MultiheadAttention):
-            adapted += _adapt_attention(module, rank, alpha, dropout, name)
+            adapted += _adapt_attention(module, rank, alpha, dropout, name, generator)
         elif not any(name.startswith(f"{other}.") for other, m in todo.items() if isinstance(m, nn.MultiheadAttention)):
-            _set_submodule(model, name, LoRALinear(module, rank, alpha, dropout))  # type: ignore[arg-type]
+            _set_submodule(model, name, LoRALinear(module, rank, alpha, dropout, generator))  # type: ignore[arg-type]
             adapted.append(name)
     if not adapted:
         raise MotionDataError(type(model).__name__, f"no Linear or MultiheadAttention matches LoRA targets {targets}")

@@ -145,6 +145,20 @@ def test_training_moves_only_adapters_and_lowers_loss() -> None:
     assert all(g is None for g in grads)
 
 
+def test_a_seeded_generator_makes_the_adapters_independent_of_the_global_rng() -> None:
+    states = []
+    for global_seed in (1, 2):
+        model = tiny_mdm()
+        torch.manual_seed(global_seed)  # what ran before in a worker must not change the artefact
+        apply_lora(model, rank=2, alpha=4.0, generator=torch.Generator().manual_seed(7))
+        states.append(lora_state_dict(model))
+    assert states[0].keys() == states[1].keys() and len(states[0]) > 0
+    assert all(torch.equal(states[0][k], states[1][k]) for k in states[0])
+    unseeded = tiny_mdm()
+    apply_lora(unseeded, rank=2, alpha=4.0)
+    assert any(not torch.equal(v, lora_state_dict(unseeded)[k]) for k, v in states[0].items())
+
+
 def test_safetensors_round_trip_into_a_fresh_model(tmp_path: Path) -> None:
     model = trained_adapted()
     state = lora_state_dict(model)

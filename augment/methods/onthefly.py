@@ -93,7 +93,10 @@ class OnTheFlyParams(BaseModel):
     epochs: int = Field(1, description="Passes over the corpus pool of L_s (ignored when max_steps is set).")
     max_steps: int | None = None
     batch_size: int = 8
-    lora_rank: int = Field(0, description="0: full fine-tune; >0: LoRA adapters on attention and feed-forward.")
+    lora_rank: int = Field(
+        0, description="0: full fine-tune; >0: LoRA adapters on attention and feed-forward (adapters start at zero: "
+        "give them a larger lr, alpha and more epochs; bench/RESULTS.md has the recipe that matched full fine-tuning)."
+    )  # fmt: skip
     lora_alpha: float | None = Field(None, description="LoRA scale numerator; defaults to the rank.")
     caption_variants: int = 3
     neutralise_content: bool = Field(True, description="Transfer: neutralise content clips whose captions name a style.")
@@ -355,7 +358,8 @@ def _trainable(model: nn.Module, params: OnTheFlyParams) -> list[nn.Parameter]:
         from models.lora import apply_lora
 
         model.requires_grad_(False)
-        apply_lora(model, params.lora_rank, params.lora_alpha or float(params.lora_rank))
+        alpha = params.lora_alpha or float(params.lora_rank)
+        apply_lora(model, params.lora_rank, alpha, generator=seeded_generator(params.seed))  # same config, same artefact
     trainable = [p for p in model.parameters() if p.requires_grad]
     if not trainable:
         raise MotionDataError("onthefly fine-tune", "no trainable parameters (LoRA found no layer to adapt?)")
