@@ -1,13 +1,13 @@
 """Text-to-motion quality of pretrained base models on the held-out (test) split of a labelled corpus.
 
 Usage: python bench/bench_t2m_quality.py --base DIR --corpus DIR [--scales 1,2,3] [--steps 20] [--threads 2]
-       [--limit N] [--seed 0]
+       [--limit N] [--seed 0] [--all-captions]
 
-For every test clip, its first caption is generated with DDIM (``--steps``) and classifier-free guidance at the
-clip's own length; the base models' content and style classifiers then judge the generated joints against the
-clip's labels (CRA / SRA, the brief's targets: >= 0.80 content, >= 0.70 style). Also reported: the classifiers'
-accuracy on the real test clips (their ceiling here) and text-to-motion retrieval R@1 of the motion encoder
-among 32 held-out candidates. Prints one JSON object.
+For every test clip, its first caption (``--all-captions``: each of its captions) is generated with DDIM
+(``--steps``) and classifier-free guidance at the clip's own length; the base models' content and style
+classifiers then judge the generated joints against the clip's labels (CRA / SRA, the brief's targets: >= 0.80
+content, >= 0.70 style). Also reported: the classifiers' accuracy on the real test clips (their ceiling here)
+and text-to-motion retrieval R@1 of the motion encoder among 32 held-out candidates. Prints one JSON object.
 """
 
 from __future__ import annotations
@@ -45,6 +45,17 @@ def generate(models: BaseModels, data: MotionSet, scale: float | None, steps: in
     )  # fmt: skip
 
 
+def one_row_per_caption(data: MotionSet) -> MotionSet:
+    """Every (clip, caption) pair as its own entry: about three samples per held-out clip instead of one."""
+    rows = [(i, c) for i, caps in enumerate(data.captions) for c in caps]
+    index = torch.tensor([i for i, _ in rows])
+    return MotionSet(
+        ids=[f"{data.ids[i]}#{c}" for i, c in rows], motions=[data.motions[i] for i, _ in rows],
+        captions=[[c] for _, c in rows], texts=data.texts, text_embed=data.text_embed, content=data.content[index],
+        style=data.style[index], content_labels=data.content_labels, style_labels=data.style_labels,
+    )  # fmt: skip
+
+
 def accuracies(models: BaseModels, data: MotionSet) -> dict[str, float]:
     """Content and style recognition of ``data`` by the base models' classifiers (labelled clips only)."""
     skeleton = skeleton_for(models.normalizer.dim)
@@ -78,6 +89,7 @@ def main() -> None:
     parser.add_argument("--limit", type=int, default=None, help="only the first N test clips")
     parser.add_argument("--batch", type=int, default=50)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--all-captions", action="store_true", help="generate every caption of each clip, not the first")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     models = BaseModels.load(args.base)
@@ -86,6 +98,9 @@ def main() -> None:
         read_clips(args.corpus, ids), models.normalizer, models.text_encoder, models.info.content_labels, models.info.style_labels
     )  # fmt: skip
     report: dict[str, object] = {"clips": len(data), "real": accuracies(models, data), "encoder_r1": encoder_r1(models, data)}
+    if args.all_captions:
+        data = one_row_per_caption(data)
+        report["captions"] = len(data)
     for scale in (float(s) for s in args.scales.split(",")):
         start = time.perf_counter()
         generated = generate(models, data, scale or None, args.steps, args.batch, args.seed)

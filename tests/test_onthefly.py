@@ -188,6 +188,15 @@ def test_transfer_moves_content_toward_the_example(base: BaseModels, clips: dict
     assert any("proud" in c.text for c in out.captions)
 
 
+def test_the_params_seed_is_used_unless_the_caller_gives_one(base: BaseModels, clips: dict[str, MotionClip]) -> None:
+    def curve(params_seed: int, seed: int | None) -> list[float]:
+        method = OnTheFlyMethod(parse_params(FAST, lambda_s=0.0, max_steps=3, seed=params_seed), text_encoder=HashTextEncoder())
+        _, fit, _, _ = method.fit(proud_spec(), [clips["proud_walk"]], base, corpus=[], seed=seed)
+        return [r["l_rec"] for r in fit.curve]
+
+    assert curve(1, None) == curve(0, 1) != curve(0, None)
+
+
 def test_semantic_loss_runs_on_the_corpus_and_is_recorded(base: BaseModels, clips: dict[str, MotionClip]) -> None:
     corpus = [clips["walk"], clips["kick"], clips["squat"], clips["angry_run"]]
     method = OnTheFlyMethod(parse_params(FAST, batch_size=2, styled_corpus="neutralise"), text_encoder=HashTextEncoder())

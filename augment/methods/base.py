@@ -61,13 +61,13 @@ class StyleTransferMethod(ABC):
         base_dir: Path,
         corpus: Sequence[MotionClip],
         out_dir: Path,
-        seed: int = 0,
+        seed: int | None = None,
         progress: Progress | None = None,
     ) -> Path:
         """Learn ``style`` from its example clips; write the artefact under ``out_dir`` and return it.
 
         ``base_dir`` holds the pre-trained base models; ``corpus`` is the content the style should
-        generalise to (the semantic loss draws batches from it).
+        generalise to (the semantic loss draws batches from it). ``seed``: None uses the method's own params.
         """
 
     @abstractmethod

@@ -676,12 +676,15 @@ class OnTheFlyMethod(StyleTransferMethod):
 
     def fit(
         self, style: StyleSpec, examples: Sequence[MotionClip], base: BaseModels, corpus: Sequence[MotionClip],
-        seed: int = 0, progress: Progress | None = None,
+        seed: int | None = None, progress: Progress | None = None,
     ) -> tuple[OnTheFlyModel, FitResult, ContentPool, int]:  # fmt: skip
         """Everything ``prepare`` does except writing: (loaded model, fit result, L_s pool, clips skipped)."""
         if not examples:
             raise MotionDataError(f"style {style.name!r}", "no example clips")
-        params = self.params.model_copy(update={"seed": seed})  # the caller's seed wins over the config's
+        if seed is not None:  # a caller's seed (the workflow's per-style seed) wins over the params'
+            params = self.params.model_copy(update={"seed": seed})
+        else:
+            params = self.params
         generator = seeded_generator(params.seed)
         start = time.perf_counter()
         pairs = make_pairs(base, examples, params, generator, style_vocab(style.words, style.name))
@@ -693,7 +696,7 @@ class OnTheFlyMethod(StyleTransferMethod):
 
     def prepare(
         self, style: StyleSpec, examples: Sequence[MotionClip], base_dir: Path, corpus: Sequence[MotionClip],
-        out_dir: Path, seed: int = 0, progress: Progress | None = None,
+        out_dir: Path, seed: int | None = None, progress: Progress | None = None,
     ) -> Path:  # fmt: skip
         configure_threads()
         base = BaseModels.load(base_dir, text_encoder=self.text_encoder)

@@ -142,7 +142,7 @@ class StatsBaselineMethod(StyleTransferMethod):
         base_dir: Path | None,
         corpus: Sequence[MotionClip],
         out_dir: Path,
-        seed: int = 0,
+        seed: int | None = None,
         progress: Progress | None = None,
     ) -> Path:
         motions = [check_clip(clip) for clip in examples]
