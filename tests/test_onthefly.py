@@ -27,6 +27,7 @@ from augment.methods.onthefly import (
     OnTheFlyMethod,
     OnTheFlyParams,
     finetune,
+    kept_channels,
     make_pairs,
     neutral_twins,
     parse_params,
@@ -186,6 +187,18 @@ def test_transfer_moves_content_toward_the_example(base: BaseModels, clips: dict
     np.testing.assert_array_equal(out.motion[:, :3], content.motion[:, :3])  # the content's path is kept
     assert {"style_score", "content_score", "foot_skating"} <= set(out.scores)
     assert any("proud" in c.text for c in out.captions)
+
+
+def test_inpaint_feet_keeps_the_contents_foot_contacts(base: BaseModels, clips: dict[str, MotionClip]) -> None:
+    method = OnTheFlyMethod(parse_params(FAST, lambda_s=0.0, max_steps=2, inpaint_feet=True), text_encoder=HashTextEncoder())
+    model, _, _, _ = method.fit(proud_spec(), [clips["proud_walk"]], base, corpus=[])
+    content = clips["walk"]
+    (out,) = model.transfer([content])
+    assert isinstance(out, TransferOutput)
+    kept = kept_channels(model.params)
+    assert kept[-4:] == list(range(259, 263))  # the four foot-contact channels of the t2m layout
+    np.testing.assert_array_equal(out.motion[:, kept], content.motion[:, kept])
+    assert not np.array_equal(out.motion, content.motion)  # the rest was transferred
 
 
 def test_the_params_seed_is_used_unless_the_caller_gives_one(base: BaseModels, clips: dict[str, MotionClip]) -> None:

@@ -86,6 +86,9 @@ class OnTheFlyParams(BaseModel):
     trajectory: Literal["horizontal", "root"] = Field(
         "horizontal", description="Inpainted channels: root rotation + linear velocity, or also the root height."
     )
+    inpaint_feet: bool = Field(
+        False, description="Also inpaint the foot-contact channels (pairs and transfer keep the gait's phase)."
+    )
     lambda_rec: float = 1.0
     lambda_s: float = 0.1
     lr: float = 1e-4
@@ -157,6 +160,12 @@ def trajectory_channels(mode: str = "horizontal") -> list[int]:
     slices = feature_slices(T2M)
     blocks = ["root_rot_vel", "root_lin_vel"] + (["root_y"] if mode == "root" else [])
     return [c for block in blocks for c in range(slices[block].start, slices[block].stop)]
+
+
+def kept_channels(params: OnTheFlyParams) -> list[int]:
+    """Channels every sampler of the method inpaints from its reference: the trajectory, and the feet if asked."""
+    feet = feature_slices(T2M)["feet"]
+    return trajectory_channels(params.trajectory) + (list(range(feet.start, feet.stop)) if params.inpaint_feet else [])
 
 
 def configure_threads() -> int:
@@ -265,7 +274,7 @@ def neutral_twins(
     with torch.no_grad(), bf16_autocast(params.bf16):
         return ddpm_sample(
             model_fn, batch.x.shape, steps=params.pair_steps, start_step=start, x_start=batch.x,
-            inpaint=batch.inpaint(trajectory_channels(params.trajectory)),
+            inpaint=batch.inpaint(kept_channels(params)),
             guidance_scale=params.pair_guidance_scale, generator=generator,
         )  # fmt: skip
 
@@ -308,7 +317,7 @@ def reconstruction_loss(model: nn.Module, pairs: StylePairs, params: OnTheFlyPar
     with bf16_autocast(params.bf16):
         preds = ddim_path(
             bind_model(model, pairs.text_embed, styled.mask), y_k, n_run, steps=params.ddim_steps,
-            inpaint=styled.inpaint(trajectory_channels(params.trajectory)),
+            inpaint=styled.inpaint(kept_channels(params)),
         )  # fmt: skip
     return torch.stack([masked_mse(p.float(), styled.x, styled.mask).mean() for p in preds]).mean()
 
@@ -322,7 +331,7 @@ def transferred_path_end(
     with bf16_autocast(params.bf16):
         preds = ddim_path(
             bind_model(model, text_embed, batch.mask), q_sample(sched, batch.x, t, noise), n_run,
-            steps=params.ddim_steps, inpaint=batch.inpaint(trajectory_channels(params.trajectory)),
+            steps=params.ddim_steps, inpaint=batch.inpaint(kept_channels(params)),
         )  # fmt: skip
     return preds[-1].float()
 
@@ -547,7 +556,7 @@ class OnTheFlyModel:
             out = ddim_sample(
                 bind_model(self.model, cond, content.mask), content.x.shape, steps=self.params.ddim_steps,
                 start_step=n_run, x_start=content.x, noise=noise,
-                inpaint=content.inpaint(trajectory_channels(self.params.trajectory)),
+                inpaint=content.inpaint(kept_channels(self.params)),
                 guidance_scale=self.params.transfer_guidance_scale,
             ).float()  # fmt: skip
         scores = self._scores(out, content.mask, cond, jobs)
@@ -567,7 +576,7 @@ class OnTheFlyModel:
 
     def _output(self, job: _Job, out: Tensor, scores: dict[str, float]) -> TransferOutput:
         motion = self.base.normalizer.denormalize(out.numpy()).astype(np.float32)
-        channels = trajectory_channels(self.params.trajectory)
+        channels = kept_channels(self.params)
         motion[:, channels] = job.motion[:, channels]  # exact, not just up to normalise/denormalise rounding
         return TransferOutput(source_id=job.clip.id, style=self.style, motion=motion, captions=job.captions, scores=scores)
 
