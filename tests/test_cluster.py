@@ -186,6 +186,16 @@ def test_a_job_uses_both_nodes(cluster: str, tmp_path: Path) -> None:
     assert "NODES 2" in client.get_job_logs(job_id)
 
 
+def process_title(pid: int) -> str:
+    """What a Ray worker shows as its command line: ``ray::<task name>`` while it runs a task, ``ray::IDLE`` after."""
+    import psutil
+
+    try:
+        return " ".join(psutil.Process(pid).cmdline())
+    except psutil.Error:
+        return ""
+
+
 def test_worker_sigkill_mid_run_loses_and_duplicates_nothing(cluster: str, corpus: Path, tmp_path: Path) -> None:
     from workflows.jobs import job_state, submit_run, wait_for_job
 
@@ -199,9 +209,11 @@ def test_worker_sigkill_mid_run_loses_and_duplicates_nothing(cluster: str, corpu
         if any(t["attempt_number"] >= 1 for t in new):
             break  # a killed task was retried
         running = [t for t in new if t["state"] == "RUNNING" and t.get("worker_pid") and t["worker_pid"] not in killed]
-        if running and len(killed) < 4:
-            os.kill(running[0]["worker_pid"], signal.SIGKILL)  # a worker of this test's own cluster
-            killed.append(running[0]["worker_pid"])
+        # the state API lags about a second: kill only a worker whose process title still names a transfer task
+        busy = [t for t in running if process_title(t["worker_pid"]).startswith("ray::transfer[")]
+        if busy and len(killed) < 4:
+            os.kill(busy[0]["worker_pid"], signal.SIGKILL)  # a worker of this test's own cluster
+            killed.append(busy[0]["worker_pid"])
             time.sleep(1.0)  # task events are reported about once a second
         time.sleep(0.05)
     assert killed, "no running transfer task was seen to kill"
