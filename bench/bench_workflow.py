@@ -60,10 +60,11 @@ def warm_workers(workers: int) -> tuple[float, int]:
     """
     import ray
 
+    from workflows.ray_executor import warm_worker
+
     @ray.remote(num_cpus=1)
     def ready() -> int:
-        import workflows.pipeline  # noqa: F401 - what the setup hook imports; a no-op when it already ran
-
+        warm_worker()  # the setup hook's own import; a no-op when the hook already ran
         time.sleep(0.5)  # hold the CPU so that each call lands on its own worker
         return os.getpid()
 
@@ -115,7 +116,8 @@ def drop_shards(run_dir: Path) -> None:
 
 def measure(config: Any, workers: int, warm: bool) -> dict[str, Any]:
     drop_shards(config.output)
-    summary, ray_timings = execute(config.model_copy(update={"compute": config.compute.model_copy(update={"num_cpus": workers})}), workers, warm=warm)
+    compute = config.compute.model_copy(update={"num_cpus": workers})
+    summary, ray_timings = execute(config.model_copy(update={"compute": compute}), workers, warm=warm)
     manifest = summary.manifest
     transfer = manifest.stages["transfer"]
     in_task = sum(s.seconds for s in manifest.shards)

@@ -690,10 +690,8 @@ class OnTheFlyMethod(StyleTransferMethod):
         """Everything ``prepare`` does except writing: (loaded model, fit result, L_s pool, clips skipped)."""
         if not examples:
             raise MotionDataError(f"style {style.name!r}", "no example clips")
-        if seed is not None:  # a caller's seed (the workflow's per-style seed) wins over the params'
-            params = self.params.model_copy(update={"seed": seed})
-        else:
-            params = self.params
+        # a caller's seed (the workflow's per-style seed) wins over the params'
+        params = self.params if seed is None else self.params.model_copy(update={"seed": seed})
         generator = seeded_generator(params.seed)
         start = time.perf_counter()
         pairs = make_pairs(base, examples, params, generator, style_vocab(style.words, style.name))
