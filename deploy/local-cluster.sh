@@ -73,7 +73,9 @@ start() {
     --include-dashboard true --temp-dir "$CLUSTER_DIR/ray" $(node_ports 0)
   for ((i = 1; i <= workers; i++)); do
     # shellcheck disable=SC2046
-    start_node "worker-$i" --address "127.0.0.1:$GCS_PORT" $(node_ports "$i")
+    # A temp dir of its own, as a separate machine has: nodes sharing one unpack the same job's working_dir
+    # into one folder, and a node that unpacks it later deletes the folder the driver runs in.
+    start_node "worker-$i" --address "127.0.0.1:$GCS_PORT" --temp-dir "$CLUSTER_DIR/ray-$i" $(node_ports "$i")
   done
   wait_for_nodes $((workers + 1))
   echo "cluster up: GCS 127.0.0.1:$GCS_PORT, dashboard http://127.0.0.1:$DASHBOARD_PORT ($((workers + 1)) nodes)"

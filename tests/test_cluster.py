@@ -158,6 +158,7 @@ def test_submit_runs_on_two_nodes_and_a_second_submit_is_refused(cluster: str, c
 
 
 PROBE = """
+import os
 import ray
 ray.init()
 
@@ -168,6 +169,9 @@ def where():
     return ray.get_runtime_context().get_node_id()
 
 print("NODES", len(set(ray.get([where.remote(), where.remote()]))))
+# a node unpacking this job's working_dir must not delete the one the driver runs in (a deleted cwd
+# kills torch: "oneMKL FATAL ERROR: Cannot load libtorch_cpu.so")
+print("CWD", "alive" if os.stat(".").st_nlink > 0 else "deleted")
 """
 
 
@@ -183,7 +187,8 @@ def test_a_job_uses_both_nodes(cluster: str, tmp_path: Path) -> None:
     client = connect(cluster)
     job_id = client.submit_job(entrypoint="python probe.py", runtime_env={"working_dir": str(tmp_path)})
     assert wait_for_job(cluster, job_id, timeout=90).status == "SUCCEEDED"
-    assert "NODES 2" in client.get_job_logs(job_id)
+    logs = client.get_job_logs(job_id)
+    assert "NODES 2" in logs and "CWD alive" in logs, logs[-2000:]
 
 
 def process_title(pid: int) -> str:
