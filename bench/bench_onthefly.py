@@ -25,6 +25,7 @@ import json
 import os
 import subprocess
 import time
+from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -167,14 +168,16 @@ def pose_errors(outputs: Sequence[np.ndarray], inputs: Sequence[np.ndarray], tar
 def accuracies(base: BaseModels, motions: Sequence[np.ndarray], contents: Sequence[str], style: str) -> dict[str, float | None]:
     """SRA (style classifier says ``style``) and CRA (content classifier says the clip's content)."""
     if base.content_classifier is None or base.style_classifier is None:
-        return {"sra": None, "cra": None}
+        return {"sra": None, "cra": None, "styles_predicted": None}
     joints, mask = pad_batch([_joints(m) for m in motions])
     with torch.no_grad():
         style_logits = base.style_classifier(joints, mask)
         content_logits = base.content_classifier(joints, mask)
     s_idx = [base.info.style_labels.index(style)] * len(motions)
     c_idx = [base.info.content_labels.index(c) for c in contents]
-    return {"sra": recognition_accuracy(style_logits, s_idx), "cra": recognition_accuracy(content_logits, c_idx)}
+    said = Counter(base.info.style_labels[i] for i in style_logits.argmax(-1).tolist())
+    return {"sra": recognition_accuracy(style_logits, s_idx), "cra": recognition_accuracy(content_logits, c_idx),
+            "styles_predicted": dict(said.most_common())}  # fmt: skip
 
 
 def run_variant(
