@@ -69,8 +69,8 @@ def main() -> None:
         rows.append(row(style, report))
     keys = ("sra", "cra", "mpjpe_gain", "ceiling", "legs_gain", "upper_gain", "finetune_s")
     mean = {"style": "mean", "example": "", **{k: float(np.mean([r[k] for r in rows])) for k in keys}}
-    (args.work / "styles.json").write_text(json.dumps({"args": vars(args) | {"work": str(args.work), "base_dir":
-        str(args.base_dir), "corpus": str(args.corpus)}, "rows": rows, "mean": mean}, indent=2))  # fmt: skip
+    summary = {"args": {k: str(v) for k, v in vars(args).items()}, "rows": rows, "mean": mean}
+    (args.work / "styles.json").write_text(json.dumps(summary, indent=2))
     print(table([*rows, mean]))
 
 
