@@ -165,8 +165,8 @@ def pose_errors(outputs: Sequence[np.ndarray], inputs: Sequence[np.ndarray], tar
     return means
 
 
-def accuracies(base: BaseModels, motions: Sequence[np.ndarray], contents: Sequence[str], style: str) -> dict[str, float | None]:
-    """SRA (style classifier says ``style``) and CRA (content classifier says the clip's content)."""
+def accuracies(base: BaseModels, motions: Sequence[np.ndarray], contents: Sequence[str], style: str) -> dict[str, Any]:
+    """SRA (style classifier says ``style``), CRA (content classifier says the clip's content) and what style it said."""
     if base.content_classifier is None or base.style_classifier is None:
         return {"sra": None, "cra": None, "styles_predicted": None}
     joints, mask = pad_batch([_joints(m) for m in motions])
