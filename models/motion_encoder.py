@@ -21,6 +21,8 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from models.attention import run_encoder
+
 EmbedLayout = Literal["btd", "tbd"]
 
 
@@ -116,7 +118,7 @@ class MotionEncoder(nn.Module):
         h = torch.cat([self.pool_token.expand(b, 1, -1), h], dim=1)  # (B, 1+T, d)
         h = self.positions(h)
         keep = torch.cat([torch.ones(b, 1, dtype=torch.bool, device=x.device), mask.bool()], dim=1)
-        h = self.encoder(h, src_key_padding_mask=~keep)  # padded frames are never attended to
+        h = run_encoder(self.encoder, h, keep)  # padded frames are never attended to
         return self.project(h[:, 0])  # (B, text_dim)
 
 

@@ -11,6 +11,8 @@ from torch import Tensor
 
 from augment.diffusion import NoiseSchedule, bind_model, ddim_sample, x0_training_loss
 from schemas.errors import MotionDataError
+from models.attention import run_encoder
+from models.lora import apply_lora
 from models.mdm import MDM, MDMConfig
 from models.mdm_checkpoint import load_official_mdm_state_dict
 
@@ -57,17 +59,48 @@ def test_output_shape_and_condition_forms() -> None:
     assert model.input_process.poseEmbedding.weight.shape == (64, 263)
 
 
-@pytest.mark.parametrize("train_mode", [False, True])
-def test_padding_frames_do_not_reach_valid_frames(train_mode: bool) -> None:
-    """Eval (PyTorch's fused encoder path) and train mode (reference path; no dropout, no condition drop)."""
-    model = tiny(dropout=0.0, cond_mask_prob=0.0).train(train_mode)
+@pytest.mark.parametrize("grad", [False, True])
+def test_padding_frames_do_not_reach_valid_frames(grad: bool) -> None:
+    """Both attention kernels of ``run_encoder``: SDPA without gradients, the plain one with."""
+    model = tiny(dropout=0.0, cond_mask_prob=0.0).train(grad)
     x, t, text, mask = inputs(model)
     x2 = x.clone()
     x2[~mask] = torch.randn(int((~mask).sum()), 263) * 100
-    with torch.no_grad():  # no_grad + eval is what enables the fused path
+    with torch.set_grad_enabled(grad):
         out, out2, unmasked = model(x, t, text, mask), model(x2, t, text, mask), model(x, t, text, None)
     assert torch.allclose(out[mask], out2[mask], atol=1e-5)
     assert not torch.allclose(unmasked[mask], out[mask], atol=1e-4)  # the mask does something
+
+
+@pytest.mark.parametrize("lora", [False, True])
+@pytest.mark.parametrize("grad", [False, True])
+def test_run_encoder_equals_pytorch_encoder(grad: bool, lora: bool) -> None:
+    """Our layer loop computes what ``nn.TransformerEncoder`` does, LoRA adapters included, values and gradients."""
+    model = tiny(dropout=0.0).eval()
+    if lora:
+        apply_lora(model, rank=2, alpha=4.0, generator=torch.Generator().manual_seed(1))
+        for name, p in model.named_parameters():
+            if name.endswith("lora_B"):
+                with torch.no_grad():
+                    p.normal_(0, 0.1)  # non-zero adapters, or LoRA would not be exercised
+    encoder = model.seqTransEncoder
+    g = torch.Generator().manual_seed(3)
+    x = torch.randn(B, T + 1, model.config.latent_dim, generator=g)
+    keep = torch.ones(B, T + 1, dtype=torch.bool)
+    keep[1, 8:] = False
+    keep[2, 2:] = False
+    for k in (keep, None):
+        mine = x.clone().requires_grad_(grad)
+        with torch.set_grad_enabled(grad):
+            ours = run_encoder(encoder, mine, k)
+            ref_in = x.clone().requires_grad_(grad)
+            theirs = encoder(ref_in, src_key_padding_mask=None if k is None else ~k)
+        valid = torch.ones(B, T + 1, dtype=torch.bool) if k is None else k
+        assert torch.allclose(ours[valid], theirs[valid], atol=1e-5)
+        if grad:
+            (ours[valid] ** 2).sum().backward()
+            (theirs[valid] ** 2).sum().backward()
+            assert torch.allclose(mine.grad, ref_in.grad, atol=1e-4)
 
 
 def test_training_cond_drop_and_masked_loss() -> None:
