@@ -16,7 +16,11 @@ from augment.base_models import BaseModels, BaseModelsInfo
 from schemas.errors import MotionDataError
 from augment.features import Normalizer, feature_slices
 from augment.geometric_losses import foot_contact_loss, geometric_losses, joint_position_loss, joint_velocity_loss
-from augment.pretrain import PretrainConfig, corpus_fingerprint, ensure_base_models, pretrain
+from augment.diffusion import NoiseSchedule
+from augment.diffusion.gaussian import sample_timesteps
+from augment.pretrain import (
+    PretrainConfig, Run, _load_data, build_prior, corpus_fingerprint, ensure_base_models, pretrain, prior_loss, skeleton_for,
+)  # fmt: skip
 from augment.synth import generate_corpus
 from augment.training_data import build_motion_set, iter_batches, read_clips, sample_batch, split_ids
 from models.mdm import MDM, MDMConfig
@@ -107,6 +111,26 @@ def test_padding_never_reaches_the_geometric_losses_or_their_gradient(corpus: Pa
         torch.testing.assert_close(again[name], losses[name].detach())
     sum(v.sum() for v in losses.values()).backward()
     assert pred.grad is not None and torch.all(pred.grad[0, 30:] == 0) and pred.grad[0, :30].abs().sum() > 0
+
+
+def test_input_perturbation_adds_exactly_its_extra_noise_to_the_prior_input(corpus: Path, text_encoder, tmp_path: Path) -> None:
+    """DDPM-IP: same batch, timesteps and first noise; the input differs by sqrt(1 - ab_t) * gamma * N(0, I)."""
+    normalizer, train, test = _load_data(corpus, text_encoder)
+    schedule, gamma = NoiseSchedule.cosine(), 0.5
+    batch = sample_batch(train, 64, 60, torch.Generator().manual_seed(0))
+    inputs = []
+    for g in (0.0, gamma):
+        cfg = tiny_config(input_perturbation=g)
+        run = Run(cfg, tmp_path, normalizer, skeleton_for(normalizer.dim), train, test, "test", None)
+        prior = build_prior(cfg, normalizer.dim, train.text_embed.shape[1])
+        hook = prior.register_forward_pre_hook(lambda _m, args: inputs.append(args[0].detach().clone()))
+        loss, _ = prior_loss(prior, schedule, batch, run, torch.Generator().manual_seed(1))
+        hook.remove()
+        assert torch.isfinite(loss)
+    t = sample_timesteps(64, schedule, torch.Generator().manual_seed(1))  # the draw prior_loss makes first
+    scale = (1 - schedule.alphas_cumprod[t]).sqrt()[:, None, None] * gamma
+    extra = (inputs[1] - inputs[0]) / scale
+    assert abs(float(extra.std()) - 1.0) < 0.05 and abs(float(extra.mean())) < 0.05
 
 
 def test_geometric_losses_reject_mismatched_shapes() -> None:
