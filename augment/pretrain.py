@@ -105,7 +105,7 @@ class PretrainConfig(BaseModel):
         presets: dict[str, dict[str, Any]] = {
             "tiny": {"prior_steps": 40, "encoder_steps": 30, "classifier_epochs": 5, "classifier_size": "tiny",
                      "batch_size": 8, "warmup_steps": 5, "lr": 1e-3, "encoder_lr": 1e-3, "checkpoint_every": 20},
-            # small: a narrow prior (d=128) takes ~0.09-0.17 s/step in bf16 on 2 cores (models/attention.py) and learns
+            # small: a narrow prior (d=128) takes ~0.14-0.17 s/step in bf16 on 2 cores (models/attention.py) and learns
             # the synthetic corpus faster per second than d=256; a step budget keeps it deterministic, the time cap
             # guards slow or loaded machines (where it stops the prior early: bench/RESULTS.md gives the steps reached);
             # input perturbation 0.1 lifted text-to-motion style recognition from 65% to 78% (bench/RESULTS.md)
