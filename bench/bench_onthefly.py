@@ -2,7 +2,7 @@
 
 Usage: python bench/bench_onthefly.py [--work /tmp/otf-bench] [--size small] [--n-clips 600] [--style proud]
        [--example-content walk] [--n-content 36] [--lora-rank 4] [--threads 2] [--random-base] [--quick]
-       [--skip ablation,lora,throughput]
+       [--skip ablation,content_clock,lora,throughput]
 
 Protocol: fine-tune on ONE example clip of ``--style`` (a ``--example-content`` clip of the corpus), then transfer
 neutral clips of the OTHER contents. Reported: SRA/CRA with the base models' classifiers (style = target style,
@@ -11,7 +11,8 @@ content = the clip's own), MPJPE of the output to the ground-truth stylised rend
 neutral path while the stylised ground truth walks its own, so the global figure mixes path and pose), and the same
 against the style rendered on the content's own clock and stride (``mpjpe_timing_kept``; ``mpjpe_oracle_timing_kept``
 scores that rendering itself against the ground truth: the ceiling of a method that keeps the content's timing), fine-tune
-seconds, the ablation without L_s, LoRA vs full fine-tuning, and transfer throughput (small/paper, fp32/bf16).
+seconds, the ablation without L_s, the paper's content clock (``tempo="content"``: no retiming to the style's tempo
+measured from the example), LoRA vs full fine-tuning, and transfer throughput (small/paper, fp32/bf16).
 
 Base models come from ``augment.pretrain.ensure_base_models(corpus, out, size)``; with ``--random-base`` (or when
 that module is absent) they are random of ``--size`` and the classifier figures are left out (null).
@@ -201,7 +202,8 @@ def run_variant(
     return {
         "variant": name, "prepare_s": prepare_s, "finetune_s": info["timings"].get("finetune_s"),
         "pairs_and_pool_s": info["timings"].get("pairs_and_pool_s"), "steps": len(curve),
-        "pool_clips": info["pool_clips"], "weights_bytes": info["weights_bytes"],
+        "pool_clips": info["pool_clips"], "tempo": info["tempo"], "tempo_note": info["tempo_note"],
+        "weights_bytes": info["weights_bytes"],
         "weights_share": info["weights_bytes"] / info["full_model_bytes"],
         "l_rec_first_last": [float(np.mean([r["l_rec"] for r in curve[:k]])), float(np.mean([r["l_rec"] for r in curve[-k:]]))],
         "l_s_first_last": [float(np.mean([r["l_s"] for r in curve[:k]])), float(np.mean([r["l_s"] for r in curve[-k:]]))],
@@ -252,7 +254,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--pretrain-batch", type=int, default=16, help="pretraining batch size (small preset: 64)")
     parser.add_argument("--pretrain-only", action="store_true", help="build the base models and stop")
     parser.add_argument("--quick", action="store_true", help="tiny sizes, few clips: a smoke run")
-    parser.add_argument("--skip", default="", help="comma list of: ablation, lora, throughput")
+    parser.add_argument("--skip", default="", help="comma list of: ablation, content_clock, lora, throughput")
     parser.add_argument("--params", default="{}", help="JSON overrides of OnTheFlyParams for every variant")
     parser.add_argument("--lora-params", default="{}", help="JSON overrides of OnTheFlyParams for the LoRA variant")
     args = parser.parse_args(argv)
@@ -294,6 +296,8 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     variants = {"full": overrides}
     if "ablation" not in skip:
         variants["no_semantic_loss"] = {**overrides, "lambda_s": 0.0}
+    if "content_clock" not in skip:
+        variants["content_clock"] = {**overrides, "tempo": "content"}
     if "lora" not in skip:
         lora_lr = 10 * overrides.get("lr", 1e-4)  # adapters start at zero and learn slower: the usual 10x rate
         lora = {"lr": lora_lr, **overrides, "lora_rank": args.lora_rank, **json.loads(args.lora_params)}

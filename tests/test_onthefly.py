@@ -31,13 +31,17 @@ from augment.methods.onthefly import (
     make_pairs,
     neutral_twins,
     parse_params,
+    resolve_tempo,
+    style_vocab,
     trajectory_channels,
 )
 from augment.style_examples import load_style_examples
 from augment.synth import sample_spec
 from augment.synth.corpus import spec_to_clip
+from augment.tempo import retime
 from models.mdm import MDM, MDMConfig
 from models.motion_encoder import MotionEncoder, MotionEncoderConfig
+from schemas.captions import Caption
 from schemas.styles import StyleExample, StyleSpec, StyleWords
 from conftest import require_shared
 
@@ -129,6 +133,11 @@ def test_params_reject_bad_values_naming_the_field() -> None:
         parse_params(lambda_rec=0.0, lambda_s=0.0)
     with pytest.raises(MotionDataError, match="batch_size"):
         OnTheFlyMethod({"batch_size": 0})
+    with pytest.raises(MotionDataError, match="tempo"):
+        parse_params(tempo=9.0)
+    with pytest.raises(MotionDataError, match="tempo"):
+        parse_params(tempo="fast")
+    assert parse_params(tempo=0.8).tempo == 0.8 and parse_params().tempo == "example"
 
 
 def test_trajectory_channels_are_the_root_blocks() -> None:
@@ -296,6 +305,45 @@ def test_full_finetune_artifact_and_base_mismatch(
     save_module(MDM(MDMConfig.named("tiny", dropout=0.0)), other / "prior.safetensors")
     with pytest.raises(MotionDataError, match="tuned from base models"):
         method.load(out_dir, other)
+
+
+# ---- tempo ----------------------------------------------------------------------------------------------------
+
+
+def test_tempo_retimes_content_and_its_caption_segments_and_is_kept_in_the_artifact(
+    base: BaseModels, base_dir: Path, clips: dict[str, MotionClip], tmp_path: Path
+) -> None:
+    method = OnTheFlyMethod(parse_params(FAST, lambda_s=0.0, max_steps=2, tempo=0.5), text_encoder=HashTextEncoder())
+    examples = load_style_examples(proud_spec(), {"ex0": clips["proud_walk"]})
+    out_dir = method.prepare(proud_spec(), examples, base_dir, [], tmp_path / "slow")
+    info = json.loads((out_dir / ARTIFACT_JSON).read_text())
+    assert info["tempo"] == 0.5 and info["tempo_note"] == "set in the params"
+    walk = clips["walk"]
+    segment = Caption(text="a person walks forward", start=0.5, end=1.5)
+    clip = MotionClip(id="seg", motion=walk.motion, captions=[segment], fps=walk.fps)
+    (out,) = method.load(out_dir, base_dir).transfer([clip])
+    assert isinstance(out, TransferOutput) and out.motion.shape == (2 * FRAMES, 263)  # half the pace: twice the frames
+    assert {(c.start, c.end) for c in out.captions} == {(1.0, 3.0)}  # the segment moved with the clock
+    np.testing.assert_array_equal(out.motion[:, :3], retime(walk.motion, 0.5, 1000)[:, :3])  # its (retimed) path kept
+    kept = OnTheFlyMethod(parse_params(FAST, lambda_s=0.0, max_steps=2, tempo="content"), text_encoder=HashTextEncoder())
+    model, _, _, _ = kept.fit(proud_spec(), [clips["proud_walk"]], base, corpus=[walk])
+    assert model.tempo == 1.0 and model.transfer([walk])[0].motion.shape == (FRAMES, 263)
+
+
+def test_tempo_is_measured_from_the_example_against_neutral_corpus_clips(base: BaseModels) -> None:
+    """Proud walks (rendered at 0.82x the neutral clock) against neutral walks of the corpus.
+
+    One walk's cadence also follows its own speed (about +-10% here), so three examples give the median."""
+    examples = [synth_clip("walk", "proud", seed, f"ex{seed}", frames=160) for seed in (10, 11, 12)]
+    walks = [synth_clip("walk", "neutral", seed, f"w{seed}", frames=160) for seed in range(20, 26)]
+    others = [synth_clip("wave", "neutral", 30, "o0"), synth_clip("squat", "neutral", 31, "o1")]
+    params = parse_params(FAST, tempo_references=6)
+    tempo, note = resolve_tempo(params, base, examples, walks + others, style_vocab(PROUD, "proud"))
+    assert tempo == pytest.approx(0.82, rel=0.1)
+    assert "3 of 3 examples" in note and "of 6 references" in note
+    still = MotionClip(id="still", motion=np.repeat(examples[0].motion[:1], 80, axis=0), captions=examples[0].captions)
+    tempo, note = resolve_tempo(params, base, [still], walks, style_vocab(PROUD, "proud"))
+    assert tempo == 1.0 and "content clock kept" in note and "do not repeat" in note
 
 
 # ---- style examples -------------------------------------------------------------------------------------------

@@ -11,6 +11,11 @@ Learning a style from one (or a few) example clips, paper sections 3.2-3.5:
 3. Transfer (sec. 3.5.2): noise a content clip to K and DDIM-denoise it with the transfer model conditioned on
    its revised caption, keeping the content's root trajectory by inpainting (sec. 7.1).
 
+Beyond the paper: the transfer keeps the content's clock, but styles change tempo (a depressed walk cycles slower).
+By default the style's tempo is measured from its examples against neutral corpus clips described alike
+(``augment.tempo``) and content clips are retimed to it before the transfer (and in the L_s pool, so the model
+is tuned on what it will see); ``tempo="content"`` keeps the paper's behaviour.
+
 Everything runs in the normalised feature space of the base models (``BaseModels.normalizer``).
 """
 
@@ -56,6 +61,7 @@ from augment.io import atomic_path, atomic_write_text, read_json_model
 from augment.methods.base import ARTIFACT_JSON, ARTIFACT_WEIGHTS, Progress, StyleTransferMethod, TransferOutput
 from augment.metrics import foot_skating_ratio
 from augment.style_examples import check_motion
+from augment.tempo import TEMPO_RANGE, retime, retime_captions, style_tempo
 from models.motion_encoder import cosine_similarity, semantic_loss
 from models.text_encoder import TextEncoder
 from schemas.captions import Caption
@@ -102,6 +108,13 @@ class OnTheFlyParams(BaseModel):
     )  # fmt: skip
     lora_alpha: float | None = Field(None, description="LoRA scale numerator; defaults to the rank.")
     caption_variants: int = 3
+    tempo: Literal["example", "content"] | float = Field(
+        "example", description="Clock of the outputs: 'example' retimes content to the style's tempo measured from its "
+        "examples (augment.tempo); 'content' keeps the content's clock (the paper); a number sets it (below 1: slower).",
+    )  # fmt: skip
+    tempo_references: int = Field(
+        16, description="Neutral corpus clips (captions nearest the examples' neutral descriptions) giving the neutral cycle."
+    )
     neutralise_content: bool = Field(True, description="Transfer: neutralise content clips whose captions name a style.")
     styled_corpus: Literal["skip", "neutralise"] = Field(
         "skip", description="L_s pool: drop corpus clips whose captions name a style, or neutralise them (slow: DDPM from G)."
@@ -143,6 +156,10 @@ def validate_params(params: OnTheFlyParams, num_timesteps: int = NUM_TRAIN_TIMES
         raise _fail("min_frames", f"must be >= 2, got {params.min_frames}")
     if params.grad_clip is not None and params.grad_clip <= 0:
         raise _fail("grad_clip", f"must be > 0 or null, got {params.grad_clip}")
+    if isinstance(params.tempo, float) and not TEMPO_RANGE[0] <= params.tempo <= TEMPO_RANGE[1]:
+        raise _fail("tempo", f"{params.tempo} outside [{TEMPO_RANGE[0]}, {TEMPO_RANGE[1]}]")
+    if params.tempo_references < 1:
+        raise _fail("tempo_references", f"must be >= 1, got {params.tempo_references}")
     return params
 
 
@@ -223,6 +240,57 @@ def revised_texts(clip: MotionClip, words: StyleWords, n_variants: int, seed: in
     if not revised:
         raise MotionDataError(f"clip {clip.id}", "no revised caption")
     return revised
+
+
+# ---- tempo (augment.tempo) ---------------------------------------------------------------------------------
+
+MAX_TEMPO_CANDIDATES = 4096  # corpus clips whose captions are embedded to find the tempo references
+
+
+def longest_frames(model: nn.Module, base: BaseModels) -> int:
+    """Most frames a clip may have here: the prior's and the motion encoder's tables (+1 token each)."""
+    return min(model.config.max_len, base.motion_encoder.config.max_len) - 1
+
+
+def retimed(motion: np.ndarray, tempo: float, base: BaseModels, longest: int) -> np.ndarray:
+    """``motion`` at the style's tempo; slowing never makes it longer than the base's longest clip or ``longest``."""
+    if tempo == 1.0:
+        return motion
+    cap = min(longest, max(len(motion), base.info.max_frames))
+    return retime(motion, tempo, cap)
+
+
+def tempo_references(
+    base: BaseModels, corpus: Sequence[MotionClip], descriptions: Sequence[str], vocab: dict[str, Any], k: int, seed: int
+) -> list[MotionClip]:
+    """The ``k`` neutral corpus clips whose captions are nearest (text embedding) to the examples' neutral descriptions."""
+    candidates = [c for c in corpus if not carries_style(_caption_text(c), vocab) and np.isfinite(c.motion).all()]
+    if len(candidates) > MAX_TEMPO_CANDIDATES:
+        order = torch.randperm(len(candidates), generator=seeded_generator(seed)).tolist()
+        candidates = [candidates[i] for i in order[:MAX_TEMPO_CANDIDATES]]
+    if not candidates:
+        return []
+    query = base.text_encoder.encode(list(descriptions)).mean(dim=0, keepdim=True)
+    keys = base.text_encoder.encode([_caption_text(c) for c in candidates])
+    similarity = torch.nn.functional.cosine_similarity(keys, query, dim=-1)
+    return [candidates[i] for i in similarity.argsort(descending=True)[:k].tolist()]
+
+
+def resolve_tempo(
+    params: OnTheFlyParams, base: BaseModels, examples: Sequence[MotionClip], corpus: Sequence[MotionClip],
+    vocab: dict[str, Any],
+) -> tuple[float, str]:  # fmt: skip
+    """(tempo, how it was set). ``"example"``: measured (``augment.tempo.style_tempo``); 1.0 when it cannot be."""
+    if params.tempo == "content":
+        return 1.0, "content clock kept (tempo='content')"
+    if not isinstance(params.tempo, str):
+        return float(params.tempo), "set in the params"
+    descriptions = [neutral_text(_caption_text(e), vocab) for e in examples]
+    references = tempo_references(base, corpus, descriptions, vocab, params.tempo_references, params.seed)
+    tempo, why = style_tempo([(e.motion, e.fps) for e in examples], [(c.motion, c.fps) for c in references])
+    if tempo is None:
+        return 1.0, f"content clock kept: {why}"
+    return tempo, f"tempo {tempo:.3f} from {why}"
 
 
 # ---- batches in the normalised space ----------------------------------------------------------------------
@@ -357,6 +425,7 @@ class FitResult:
     model: nn.Module
     curve: list[dict[str, float]]
     timings: dict[str, float]
+    tempo_note: str = ""
 
 
 def _trainable(model: nn.Module, params: OnTheFlyParams) -> list[nn.Parameter]:
@@ -451,14 +520,16 @@ def make_pairs(
 
 
 def make_pool(
-    base: BaseModels, corpus: Sequence[MotionClip], style: StyleSpec, params: OnTheFlyParams, generator: torch.Generator
+    base: BaseModels, corpus: Sequence[MotionClip], style: StyleSpec, params: OnTheFlyParams, generator: torch.Generator,
+    tempo: float = 1.0,
 ) -> tuple[ContentPool, int]:
     """The L_s pool: usable corpus clips, normalised, with revised captions. Returns (pool, clips skipped).
 
     Clips whose captions name a style are skipped (``styled_corpus="skip"``, the default: the pool is for learning
     how neutral content takes the style) or replaced by their neutral twins. Clips too short, not finite, or whose
-    captions cannot be revised are skipped.
+    captions cannot be revised are skipped. Clips are retimed to ``tempo`` as the transfer will retime them.
     """
+    longest = longest_frames(base.prior, base)
     vocab = style_vocab(style.words, style.name)
     clean, styled, skipped = [], [], 0
     for i, clip in enumerate(corpus):
@@ -468,6 +539,9 @@ def make_pool(
             continue
         try:
             motion = check_motion(clip.motion, f"corpus clip {clip.id}", min_frames=params.min_frames)
+            if len(motion) > longest:
+                raise MotionDataError(f"corpus clip {clip.id}", f"{len(motion)} frames exceed the models' {longest}")
+            motion = retimed(motion, tempo, base, longest)
             texts = [c.text for c in revised_texts(clip, style.words, params.caption_variants, params.seed + i, vocab)]
         except MotionDataError:
             skipped += 1
@@ -501,8 +575,9 @@ class OnTheFlyModel:
     """A fine-tuned transfer model serving batches (``StyleModel``). Bad clips come back as ``Reject``s."""
 
     def __init__(self, style: StyleSpec, base: BaseModels, model: nn.Module, params: OnTheFlyParams,
-                 batch_size: int | None = None) -> None:  # fmt: skip
+                 batch_size: int | None = None, tempo: float = 1.0) -> None:  # fmt: skip
         self.style = style.name
+        self.tempo = tempo  # content clips are retimed to it before the transfer (1.0: their own clock)
         self.spec = style
         self.base = base
         self.model = model.eval().requires_grad_(False)
@@ -514,11 +589,15 @@ class OnTheFlyModel:
         """Validate a clip and revise its captions; any ``MotionDataError`` here rejects just this clip."""
         source = f"clip {clip.id}"
         motion = check_motion(clip.motion, source, feature_dim=self.base.normalizer.dim, min_frames=self.params.min_frames)
-        longest = min(self.model.config.max_len, self.base.motion_encoder.config.max_len) - 1  # +1 token each
+        longest = longest_frames(self.model, self.base)
         if motion.shape[0] > longest:
             raise MotionDataError(source, f"{motion.shape[0]} frames exceed the models' {longest}")
+        motion = retimed(motion, self.tempo, self.base, longest)
         clip_seed = seed + zlib.crc32(clip.id.encode("utf-8"))
         captions = revised_texts(clip, self.spec.words, self.params.caption_variants, clip_seed, self.vocab)
+        captions = retime_captions(captions, self.tempo, motion.shape[0] / clip.fps)
+        if not captions:
+            raise MotionDataError(source, f"no caption segment left after retiming to tempo {self.tempo:.3f}")
         styled = self.params.neutralise_content and carries_style(_caption_text(clip), self.vocab)
         return _Job(index, clip, motion, captions, styled)
 
@@ -600,6 +679,8 @@ class OnTheFlyArtifact(BaseModel):
     trainable_parameters: int
     pool_clips: int
     pool_skipped: int
+    tempo: float = 1.0
+    tempo_note: str = ""
     loss_curve: list[dict[str, float]]
     timings: dict[str, float]
 
@@ -694,12 +775,15 @@ class OnTheFlyMethod(StyleTransferMethod):
         params = self.params if seed is None else self.params.model_copy(update={"seed": seed})
         generator = seeded_generator(params.seed)
         start = time.perf_counter()
-        pairs = make_pairs(base, examples, params, generator, style_vocab(style.words, style.name))
-        pool, skipped = make_pool(base, corpus, style, params, generator)  # also sets the step count when lambda_s=0
+        vocab = style_vocab(style.words, style.name)
+        pairs = make_pairs(base, examples, params, generator, vocab)
+        tempo, fit_note = resolve_tempo(params, base, examples, corpus, vocab)
+        pool, skipped = make_pool(base, corpus, style, params, generator, tempo)  # also sets the step count when lambda_s=0
         prep_s = time.perf_counter() - start
         fit = finetune(base, pairs, pool, params, progress)
         fit.timings["pairs_and_pool_s"] = prep_s
-        return OnTheFlyModel(style, base, fit.model, params), fit, pool, skipped
+        fit.tempo_note = fit_note
+        return OnTheFlyModel(style, base, fit.model, params, tempo=tempo), fit, pool, skipped
 
     def prepare(
         self, style: StyleSpec, examples: Sequence[MotionClip], base_dir: Path, corpus: Sequence[MotionClip],
@@ -720,7 +804,7 @@ class OnTheFlyMethod(StyleTransferMethod):
             weights="lora" if model.params.lora_rank > 0 else "full", weights_bytes=tensor_bytes(weights),
             full_model_bytes=tensor_bytes(model.base.prior.state_dict()),
             trainable_parameters=sum(t.numel() for t in weights.values()), pool_clips=len(pool), pool_skipped=skipped,
-            loss_curve=fit.curve, timings=fit.timings,
+            tempo=model.tempo, tempo_note=fit.tempo_note, loss_curve=fit.curve, timings=fit.timings,
         )  # fmt: skip
         out_dir.mkdir(parents=True, exist_ok=True)
         with atomic_path(out_dir / ARTIFACT_WEIGHTS) as tmp:
@@ -742,4 +826,4 @@ class OnTheFlyMethod(StyleTransferMethod):
         base = BaseModels.load(base_dir, text_encoder=options.get("text_encoder", self.text_encoder))
         model = rebuild_transfer_model(base, info, Path(artifact_dir) / ARTIFACT_WEIGHTS, bool(options.get("merge", False)))
         params = info.params if "bf16" not in options else info.params.model_copy(update={"bf16": bool(options["bf16"])})
-        return OnTheFlyModel(info.style, base, model, params, options.get("batch_size"))
+        return OnTheFlyModel(info.style, base, model, params, options.get("batch_size"), tempo=info.tempo)
