@@ -104,7 +104,8 @@ class OnTheFlyParams(BaseModel):
     batch_size: int = 8
     lora_rank: int = Field(
         0, description="0: full fine-tune; >0: LoRA adapters on attention and feed-forward (adapters start at zero: "
-        "give them a larger lr, alpha and more epochs; bench/RESULTS.md has the recipe that matched full fine-tuning)."
+        "give them a larger lr, alpha and more epochs; bench/RESULTS.md has the recipes tried and how close each came "
+        "to full fine-tuning)."
     )  # fmt: skip
     lora_alpha: float | None = Field(None, description="LoRA scale numerator; defaults to the rank.")
     caption_variants: int = 3
