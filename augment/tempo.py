@@ -44,7 +44,7 @@ def cycle_period(features: np.ndarray, fps: float, skeleton: Skeleton = T2M) -> 
     repeats as cleanly as a straight one.
     """
     x = np.asarray(features, dtype=np.float64)[:, feature_slices(skeleton)["ric"]]
-    lo = int(MIN_PERIOD_S * fps)
+    lo = max(1, int(MIN_PERIOD_S * fps))  # >= 1: the peak search reads one lag below it
     hi = min(int(MAX_PERIOD_S * fps), int(MAX_LAG_SHARE * len(x)))
     if hi <= lo + 2:
         return None

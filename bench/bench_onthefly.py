@@ -6,9 +6,10 @@ Usage: python bench/bench_onthefly.py [--work /tmp/otf-bench] [--size small] [--
 
 Protocol: fine-tune on ONE example clip of ``--style`` (a ``--example-content`` clip of the corpus), then transfer
 neutral clips of the OTHER contents. Reported: SRA/CRA with the base models' classifiers (style = target style,
-content = the clip's own), MPJPE of the output to the ground-truth stylised rendering of the same clip spec
-(``ClipSpec.with_style``) vs the neutral input's (global joints and root-relative joints: the output keeps the
-neutral path while the stylised ground truth walks its own, so the global figure mixes path and pose), and the same
+content = the clip's own; also of the inputs, of the inputs at the variant's tempo and of the ground truth),
+MPJPE of the output to the ground-truth stylised rendering of the same clip spec (``ClipSpec.with_style``) vs
+the neutral input's (global joints and root-relative joints: the output keeps the neutral path while the
+stylised ground truth walks its own, so the global figure mixes path and pose), and the same
 against the style rendered on the content's own clock and stride (``mpjpe_timing_kept``; ``mpjpe_oracle_timing_kept``
 scores that rendering itself against the ground truth: the ceiling of a method that keeps the content's timing), fine-tune
 seconds, the ablation without L_s, the paper's content clock (``tempo="content"``: no retiming to the style's tempo
@@ -38,7 +39,7 @@ from augment.base_models import BaseModels, BaseModelsInfo, config_dict
 from augment.clip import MotionClip
 from augment.evaluation_inputs import features_to_joints, pad_batch
 from augment.methods.base import TransferOutput
-from augment.methods.onthefly import OnTheFlyMethod, OnTheFlyModel, parse_params
+from augment.methods.onthefly import OnTheFlyMethod, OnTheFlyModel, longest_frames, parse_params, retimed
 from augment.metrics import mpjpe, recognition_accuracy
 from augment.style_examples import load_style_examples
 from models.mdm import MDM, MDMConfig
@@ -167,9 +168,10 @@ def pose_errors(outputs: Sequence[np.ndarray], inputs: Sequence[np.ndarray], tar
 
 
 def accuracies(base: BaseModels, motions: Sequence[np.ndarray], contents: Sequence[str], style: str) -> dict[str, Any]:
-    """SRA (style classifier says ``style``), CRA (content classifier says the clip's content) and what style it said."""
+    """SRA (style classifier says ``style``), CRA (content classifier says the clip's content), what style it said
+    and, for the clips whose content it missed, ``"true -> said"`` counts."""
     if base.content_classifier is None or base.style_classifier is None:
-        return {"sra": None, "cra": None, "styles_predicted": None}
+        return {"sra": None, "cra": None, "styles_predicted": None, "contents_missed": None}
     joints, mask = pad_batch([_joints(m) for m in motions])
     with torch.no_grad():
         style_logits = base.style_classifier(joints, mask)
@@ -177,8 +179,10 @@ def accuracies(base: BaseModels, motions: Sequence[np.ndarray], contents: Sequen
     s_idx = [base.info.style_labels.index(style)] * len(motions)
     c_idx = [base.info.content_labels.index(c) for c in contents]
     said = Counter(base.info.style_labels[i] for i in style_logits.argmax(-1).tolist())
+    content_said = [base.info.content_labels[i] for i in content_logits.argmax(-1).tolist()]
+    missed = Counter(f"{c} -> {p}" for c, p in zip(contents, content_said) if c != p)
     return {"sra": recognition_accuracy(style_logits, s_idx), "cra": recognition_accuracy(content_logits, c_idx),
-            "styles_predicted": dict(said.most_common())}  # fmt: skip
+            "styles_predicted": dict(said.most_common()), "contents_missed": dict(missed.most_common())}  # fmt: skip
 
 
 def run_variant(
@@ -198,6 +202,10 @@ def run_variant(
     done = [o for o in outs if isinstance(o, TransferOutput)]
     motions = [o.motion for o in done]
     curve = info["loss_curve"]
+    contents = [c.content or "" for c in content]
+    targets = [ground_truth(c, style) for c in content]
+    longest = longest_frames(model.model, model.base)
+    inputs_retimed = [retimed(c.motion, model.tempo, model.base, longest) for c in content]
     k = max(1, len(curve) // 10)
     return {
         "variant": name, "prepare_s": prepare_s, "finetune_s": info["timings"].get("finetune_s"),
@@ -208,9 +216,12 @@ def run_variant(
         "l_rec_first_last": [float(np.mean([r["l_rec"] for r in curve[:k]])), float(np.mean([r["l_rec"] for r in curve[-k:]]))],
         "l_s_first_last": [float(np.mean([r["l_s"] for r in curve[:k]])), float(np.mean([r["l_s"] for r in curve[-k:]]))],
         "transferred": len(done), "rejected": len(outs) - len(done), "transfer_clips_per_s": len(done) / transfer_s,
-        **accuracies(model.base, motions, [c.content or "" for c in content], style),
-        "input_accuracy": accuracies(model.base, [c.motion for c in content], [c.content or "" for c in content], style),
-        "mpjpe": pose_errors(motions, [c.motion for c in content], [ground_truth(c, style) for c in content]),
+        **accuracies(model.base, motions, contents, style),
+        "input_accuracy": accuracies(model.base, [c.motion for c in content], contents, style),
+        # what the classifiers make of the inputs at the variant's tempo (before any transfer) and of the ground truth
+        "retimed_input_accuracy": accuracies(model.base, inputs_retimed, contents, style),
+        "ground_truth_accuracy": accuracies(model.base, targets, contents, style),
+        "mpjpe": pose_errors(motions, [c.motion for c in content], targets),
         "mpjpe_timing_kept": pose_errors(motions, [c.motion for c in content], [ground_truth(c, style, True) for c in content]),
         "mean_scores": {key: float(np.mean([o.scores[key] for o in done])) for key in done[0].scores} if done else {},
     }  # fmt: skip
