@@ -242,6 +242,45 @@ def base_state_dict(model: nn.Module) -> dict[str, Tensor]:
     return out
 
 
+def adapted_biases(model: nn.Module, extra: Iterable[str] = ()) -> dict[str, nn.Parameter]:
+    """Biases of the adapted layers and of the Linear modules named in ``extra``, by state-dict key (BitFit beside LoRA).
+
+    A low-rank delta acts on per-frame activations, so a shift held over a whole clip (a chest kept up) costs it
+    rank and comes out modulated frame by frame; a bias carries that shift for a few hundred numbers a layer.
+    """
+    found: dict[str, nn.Parameter] = {}
+    for name, module in model.named_modules():
+        if isinstance(module, LoRALinear):
+            bias, key = module.base.bias, f"{name}.base.bias"
+        elif parametrize.is_parametrized(module, _IN_PROJ):
+            bias, key = getattr(module, "in_proj_bias", None), f"{name}.in_proj_bias"
+        elif isinstance(module, nn.Linear) and name and _matches(name, extra) and not name.endswith(".base"):
+            bias, key = module.bias, f"{name}.bias"
+        else:
+            continue
+        if bias is not None:
+            found[key] = bias
+    return found
+
+
+def load_biases(model: nn.Module, state: dict[str, Tensor], extra: Iterable[str] = ()) -> None:
+    """Copy trained biases saved under ``adapted_biases`` keys into an adapted model; keys and shapes must match."""
+    own = adapted_biases(model, extra)
+    missing, unexpected = sorted(set(own) - set(state)), sorted(set(state) - set(own))
+    if missing or unexpected:
+        raise MotionDataError("LoRA biases", f"keys differ: missing {missing[:3]}, unexpected {unexpected[:3]}")
+    with torch.no_grad():
+        for key, value in state.items():
+            if tuple(value.shape) != tuple(own[key].shape):
+                raise MotionDataError("LoRA biases", f"{key} has shape {tuple(value.shape)}, model expects {tuple(own[key].shape)}")
+            own[key].copy_(value)
+
+
+def is_lora_key(key: str) -> bool:
+    """An adapter tensor's state-dict key (A, B, scale)."""
+    return _is_lora_key(key)
+
+
 def count_lora_bytes(model: nn.Module) -> int:
     """Bytes of the adapter tensors, i.e. of the per-style artefact's weights."""
     return sum(t.numel() * t.element_size() for t in lora_state_dict(model).values())

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from safetensors.torch import load_file, save_file
 
 from augment.base_models import BaseModels, BaseModelsInfo, config_dict
 from augment.clip import MotionClip
@@ -34,6 +35,7 @@ from augment.methods.onthefly import (
     resolve_tempo,
     style_vocab,
     trajectory_channels,
+    WeightAverage,
 )
 from augment.style_examples import load_style_examples
 from augment.synth import sample_spec
@@ -138,6 +140,10 @@ def test_params_reject_bad_values_naming_the_field() -> None:
     with pytest.raises(MotionDataError, match="tempo"):
         parse_params(tempo="fast")
     assert parse_params(tempo=0.8).tempo == 0.8 and parse_params().tempo == "example"
+    with pytest.raises(MotionDataError, match="ema_decay"):
+        parse_params(ema_decay=1.0)
+    with pytest.raises(MotionDataError, match="lora_targets"):
+        parse_params(lora_rank=4, lora_targets=[])
 
 
 def test_trajectory_channels_are_the_root_blocks() -> None:
@@ -279,6 +285,47 @@ def test_lora_artifact_round_trip_gives_identical_transfers(
     merged = method.load(out_dir, base_dir, merge=True).transfer(content, seed=1)
     for a, b in zip(before, merged):
         np.testing.assert_allclose(a.motion, b.motion, atol=1e-3)
+
+
+def test_lora_biases_are_trained_stored_and_reloaded(
+    base: BaseModels, base_dir: Path, clips: dict[str, MotionClip], tmp_path: Path
+) -> None:
+    params = parse_params(FAST, lambda_s=0.0, max_steps=4, lora_rank=2, lora_biases=True)
+    method = OnTheFlyMethod(params, text_encoder=HashTextEncoder())
+    model, fit, pool, skipped = method.fit(proud_spec(), [clips["proud_walk"]], base, corpus=[])
+    out_dir = method.save(tmp_path / "style=proud", base_dir, model, fit, pool, skipped)
+    stored = load_file(str(out_dir / ARTIFACT_WEIGHTS))
+    output_bias = "output_process.poseFinal.bias"
+    assert output_bias in stored and "seqTransEncoder.layers.0.linear1.base.bias" in stored
+    assert not torch.equal(stored[output_bias], base.prior.output_process.poseFinal.bias)  # trained
+    info = json.loads((out_dir / ARTIFACT_JSON).read_text())
+    assert info["weights_bytes"] <= 0.05 * info["full_model_bytes"]
+    content = [clips["walk"], clips["kick"]]
+    before = model.transfer(content, seed=1)
+    for merge in (False, True):
+        after = method.load(out_dir, base_dir, merge=merge).transfer(content, seed=1)
+        for a, b in zip(before, after):
+            np.testing.assert_allclose(a.motion, b.motion, atol=1e-3)
+    del stored[output_bias]
+    save_file(stored, str(out_dir / ARTIFACT_WEIGHTS))
+    with pytest.raises(MotionDataError, match="missing.*poseFinal"):
+        method.load(out_dir, base_dir)
+
+
+def test_weight_average_follows_the_training_and_is_shipped(base: BaseModels, clips: dict[str, MotionClip]) -> None:
+    average = WeightAverage([torch.nn.Parameter(torch.zeros(3))], decay=0.5)
+    for value in (2.0, 4.0):
+        average.params[0].data.fill_(value)
+        average.update()
+    assert torch.allclose(average.shadow[0], torch.full((3,), 2.5))  # 0 -> 1 -> 2.5
+    average.copy_to_params()
+    assert torch.equal(average.params[0].data, torch.full((3,), 2.5))
+    pairs = make_pairs(base, [clips["proud_walk"]], parse_params(FAST), torch.Generator().manual_seed(0))
+    plain = finetune(base, pairs, ContentPool([], []), parse_params(FAST, lambda_s=0.0, max_steps=6))
+    smooth = finetune(base, pairs, ContentPool([], []), parse_params(FAST, lambda_s=0.0, max_steps=6, ema_decay=0.5))
+    assert [r["l_rec"] for r in plain.curve] == [r["l_rec"] for r in smooth.curve]  # averaging never feeds back
+    w_prior, w_last, w_avg = (m.output_process.poseFinal.weight for m in (base.prior, plain.model, smooth.model))
+    assert 0 < (w_avg - w_prior).norm() < (w_last - w_prior).norm()  # between the start and the last step
 
 
 def test_full_finetune_artifact_and_base_mismatch(

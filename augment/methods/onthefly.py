@@ -62,6 +62,8 @@ from augment.methods.base import ARTIFACT_JSON, ARTIFACT_WEIGHTS, Progress, Styl
 from augment.metrics import foot_skating_ratio
 from augment.style_examples import check_motion
 from augment.tempo import TEMPO_RANGE, retime, retime_captions, style_tempo
+from models.lora import DEFAULT_TARGETS as LORA_TARGETS
+from models.lora import adapted_biases, apply_lora, is_lora_key, load_biases, load_lora_state_dict, lora_state_dict, merge_lora
 from models.motion_encoder import cosine_similarity, semantic_loss
 from models.text_encoder import TextEncoder
 from schemas.captions import Caption
@@ -103,11 +105,21 @@ class OnTheFlyParams(BaseModel):
     max_steps: int | None = None
     batch_size: int = 8
     lora_rank: int = Field(
-        0, description="0: full fine-tune; >0: LoRA adapters on attention and feed-forward (adapters start at zero: "
-        "give them a larger lr, alpha and more epochs; bench/RESULTS.md has the recipes tried and how close each came "
-        "to full fine-tuning)."
+        0, description="0: full fine-tune; >0: LoRA adapters on lora_targets (they start at zero: give them a larger "
+        "lr and alpha, but not more passes, which memorise the example; bench/RESULTS.md has the recipes tried and "
+        "how close each came to full fine-tuning)."
     )  # fmt: skip
     lora_alpha: float | None = Field(None, description="LoRA scale numerator; defaults to the rank.")
+    lora_targets: tuple[str, ...] = Field(
+        LORA_TARGETS, description="Modules given adapters, by their last name components (models.lora)."
+    )
+    lora_biases: bool = Field(
+        False, description="LoRA: also train the biases of the adapted layers and of the output layer (BitFit): "
+        "shifts a style holds over the whole clip, which low-rank deltas render frame by frame.",
+    )  # fmt: skip
+    ema_decay: float | None = Field(
+        None, description="Keep an exponential moving average of the trained weights and ship it (None: the last step)."
+    )
     caption_variants: int = 3
     tempo: Literal["example", "content"] | float = Field(
         "example", description="Clock of the outputs: 'example' retimes content to the style's tempo measured from its "
@@ -153,6 +165,10 @@ def validate_params(params: OnTheFlyParams, num_timesteps: int = NUM_TRAIN_TIMES
         raise _fail("max_steps", f"must be >= 1, got {params.max_steps}")
     if params.lora_rank < 0:
         raise _fail("lora_rank", f"must be >= 0, got {params.lora_rank}")
+    if params.ema_decay is not None and not 0.0 < params.ema_decay < 1.0:
+        raise _fail("ema_decay", f"{params.ema_decay} outside (0, 1)")
+    if params.lora_rank > 0 and not params.lora_targets:
+        raise _fail("lora_targets", "empty: LoRA needs at least one module to adapt")
     if params.min_frames < 2:
         raise _fail("min_frames", f"must be >= 2, got {params.min_frames}")
     if params.grad_clip is not None and params.grad_clip <= 0:
@@ -429,20 +445,47 @@ class FitResult:
     tempo_note: str = ""
 
 
+LORA_OUTPUT_LAYERS = ("output_process.poseFinal",)  # biased with ``lora_biases``: the direct pose offset
+
+
+def _lora_biases(model: nn.Module, params: OnTheFlyParams) -> dict[str, nn.Parameter]:
+
+    return adapted_biases(model, LORA_OUTPUT_LAYERS) if params.lora_biases else {}
+
+
 def _trainable(model: nn.Module, params: OnTheFlyParams) -> list[nn.Parameter]:
     """Full fine-tune: every prior weight. LoRA: only the adapters (the copied prior is frozen first)."""
     if params.lora_rank == 0:
         model.requires_grad_(True)
     else:
-        from models.lora import apply_lora
-
         model.requires_grad_(False)
         alpha = params.lora_alpha or float(params.lora_rank)
-        apply_lora(model, params.lora_rank, alpha, generator=seeded_generator(params.seed))  # same config, same artefact
+        apply_lora(model, params.lora_rank, alpha, params.lora_targets, generator=seeded_generator(params.seed))
+        for bias in _lora_biases(model, params).values():
+            bias.requires_grad_(True)
     trainable = [p for p in model.parameters() if p.requires_grad]
     if not trainable:
         raise MotionDataError("onthefly fine-tune", "no trainable parameters (LoRA found no layer to adapt?)")
     return trainable
+
+
+class WeightAverage:
+    """Exponential moving average of the trained tensors (Polyak averaging): one example gives noisy last steps."""
+
+    def __init__(self, params: Sequence[nn.Parameter], decay: float) -> None:
+        self.params = list(params)
+        self.decay = decay
+        self.shadow = [p.detach().clone() for p in self.params]
+
+    @torch.no_grad()
+    def update(self) -> None:
+        for shadow, param in zip(self.shadow, self.params):
+            shadow.lerp_(param.detach(), 1.0 - self.decay)
+
+    @torch.no_grad()
+    def copy_to_params(self) -> None:
+        for shadow, param in zip(self.shadow, self.params):
+            param.copy_(shadow)
 
 
 def _step_plan(n_pool: int, params: OnTheFlyParams) -> int:
@@ -477,7 +520,9 @@ def finetune(
     """
     generator = seeded_generator(params.seed)
     model = copy.deepcopy(base.prior).eval()
-    optimizer = torch.optim.AdamW(_trainable(model, params), lr=params.lr, weight_decay=0.0)
+    trainable = _trainable(model, params)
+    optimizer = torch.optim.AdamW(trainable, lr=params.lr, weight_decay=0.0)
+    average = WeightAverage(trainable, params.ema_decay) if params.ema_decay is not None else None
     use_s = params.lambda_s > 0 and len(pool) > 0
     if not use_s and params.lambda_rec == 0:
         raise MotionDataError("onthefly fine-tune", "lambda_rec is 0 and no corpus clips for L_s: nothing to learn")
@@ -494,11 +539,15 @@ def finetune(
         if params.grad_clip is not None:
             nn.utils.clip_grad_norm_(optimizer.param_groups[0]["params"], params.grad_clip)
         optimizer.step()
+        if average is not None:
+            average.update()
         record = {"step": float(step), "l_rec": l_rec.item(), "l_s": l_s.item(), "total": total.item(),
                   "seconds": time.perf_counter() - start}  # fmt: skip
         curve.append(record)
         if progress is not None:
             progress(step + 1, n_steps, record)
+    if average is not None:
+        average.copy_to_params()
     model.requires_grad_(False)
     return FitResult(model, curve, {"finetune_s": time.perf_counter() - start, "steps": float(n_steps)})
 
@@ -706,9 +755,7 @@ def tensor_bytes(state: dict[str, Tensor]) -> int:
 def weights_state(model: nn.Module, params: OnTheFlyParams) -> dict[str, Tensor]:
     """What the artefact stores: only adapter tensors for LoRA, else the whole transfer model."""
     if params.lora_rank > 0:
-        from models.lora import lora_state_dict
-
-        state = lora_state_dict(model)
+        state = {**lora_state_dict(model), **_lora_biases(model, params)}
     else:
         state = model.state_dict()
     return {k: v.detach().contiguous().clone() for k, v in state.items()}
@@ -728,14 +775,16 @@ def rebuild_transfer_model(base: BaseModels, info: OnTheFlyArtifact, weights: Pa
     if info.weights == "full":
         load_module(model, weights)
         return model.eval().requires_grad_(False)
-    from models.lora import apply_lora, load_lora_state_dict, merge_lora
-
     try:
         state = load_file(str(weights))
     except Exception as err:  # safetensors has its own error types
         raise MotionDataError(str(weights), f"unreadable safetensors ({err})") from None
-    apply_lora(model, info.params.lora_rank, info.params.lora_alpha or float(info.params.lora_rank))
-    load_lora_state_dict(model, state)
+    rank, targets = info.params.lora_rank, info.params.lora_targets
+    apply_lora(model, rank, info.params.lora_alpha or float(rank), targets)
+    load_lora_state_dict(model, {k: v for k, v in state.items() if is_lora_key(k)})
+    biases = {k: v for k, v in state.items() if not is_lora_key(k)}
+    if biases or info.params.lora_biases:
+        load_biases(model, biases, LORA_OUTPUT_LAYERS if info.params.lora_biases else ())
     if merge:
         merge_lora(model)
     return model.eval().requires_grad_(False)
