@@ -194,18 +194,19 @@ def apply_lora(
     return sorted(adapted)
 
 
-def _is_lora_key(key: str) -> bool:
+def is_lora_key(key: str) -> bool:
+    """An adapter tensor's state-dict key (A, B, scale)."""
     return key.rpartition(".")[2].startswith(LORA_PREFIX)
 
 
 def lora_state_dict(model: nn.Module) -> dict[str, Tensor]:
     """Only the adapter tensors (A, B and their scale), detached and contiguous (safetensors-ready)."""
-    return {k: v.detach().contiguous().clone() for k, v in model.state_dict().items() if _is_lora_key(k)}
+    return {k: v.detach().contiguous().clone() for k, v in model.state_dict().items() if is_lora_key(k)}
 
 
 def load_lora_state_dict(model: nn.Module, state: dict[str, Tensor]) -> None:
     """Copy adapter tensors into a model that ``apply_lora`` prepared the same way; keys and shapes must match."""
-    own = {k: v for k, v in model.state_dict().items() if _is_lora_key(k)}
+    own = {k: v for k, v in model.state_dict().items() if is_lora_key(k)}
     if not own:
         raise MotionDataError("LoRA state", "model has no LoRA adapters; call apply_lora first")
     missing, unexpected = sorted(set(own) - set(state)), sorted(set(state) - set(own))
@@ -234,7 +235,7 @@ def base_state_dict(model: nn.Module) -> dict[str, Tensor]:
     wrapped = tuple(f"{name}.base." for name, m in model.named_modules() if isinstance(m, LoRALinear))
     out: dict[str, Tensor] = {}
     for key, value in model.state_dict().items():
-        if _is_lora_key(key):
+        if is_lora_key(key):
             continue
         key = key.replace(f"parametrizations.{_IN_PROJ}.original", _IN_PROJ)
         prefix = next((p for p in wrapped if key.startswith(p)), None)
@@ -246,7 +247,8 @@ def adapted_biases(model: nn.Module, extra: Iterable[str] = ()) -> dict[str, nn.
     """Biases of the adapted layers and of the Linear modules named in ``extra``, by state-dict key (BitFit beside LoRA).
 
     A low-rank delta acts on per-frame activations, so a shift held over a whole clip (a chest kept up) costs it
-    rank and comes out modulated frame by frame; a bias carries that shift for a few hundred numbers a layer.
+    rank; a bias carries such a shift for a few hundred numbers a layer (on the proud protocol it did not move
+    SRA: bench/RESULTS.md, session 7).
     """
     found: dict[str, nn.Parameter] = {}
     for name, module in model.named_modules():
@@ -274,11 +276,6 @@ def load_biases(model: nn.Module, state: dict[str, Tensor], extra: Iterable[str]
             if tuple(value.shape) != tuple(own[key].shape):
                 raise MotionDataError("LoRA biases", f"{key} has shape {tuple(value.shape)}, model expects {tuple(own[key].shape)}")
             own[key].copy_(value)
-
-
-def is_lora_key(key: str) -> bool:
-    """An adapter tensor's state-dict key (A, B, scale)."""
-    return _is_lora_key(key)
 
 
 def count_lora_bytes(model: nn.Module) -> int:

@@ -115,7 +115,7 @@ class OnTheFlyParams(BaseModel):
     )
     lora_biases: bool = Field(
         False, description="LoRA: also train the biases of the adapted layers and of the output layer (BitFit): "
-        "shifts a style holds over the whole clip, which low-rank deltas render frame by frame.",
+        "shifts a style holds over the whole clip cost low-rank deltas rank, a bias carries them.",
     )  # fmt: skip
     ema_decay: float | None = Field(
         None, description="Keep an exponential moving average of the trained weights and ship it (None: the last step)."
@@ -449,7 +449,6 @@ LORA_OUTPUT_LAYERS = ("output_process.poseFinal",)  # biased with ``lora_biases`
 
 
 def _lora_biases(model: nn.Module, params: OnTheFlyParams) -> dict[str, nn.Parameter]:
-
     return adapted_biases(model, LORA_OUTPUT_LAYERS) if params.lora_biases else {}
 
 
@@ -783,7 +782,7 @@ def rebuild_transfer_model(base: BaseModels, info: OnTheFlyArtifact, weights: Pa
     apply_lora(model, rank, info.params.lora_alpha or float(rank), targets)
     load_lora_state_dict(model, {k: v for k, v in state.items() if is_lora_key(k)})
     biases = {k: v for k, v in state.items() if not is_lora_key(k)}
-    if biases or info.params.lora_biases:
+    if biases or info.params.lora_biases:  # biases the params do not name fail on their keys
         load_biases(model, biases, LORA_OUTPUT_LAYERS if info.params.lora_biases else ())
     if merge:
         merge_lora(model)
