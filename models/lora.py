@@ -18,7 +18,7 @@ restores the plain module structure (and the base state-dict keys) for inference
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
 
 import torch
 import torch.nn.functional as F
@@ -209,13 +209,18 @@ def load_lora_state_dict(model: nn.Module, state: dict[str, Tensor]) -> None:
     own = {k: v for k, v in model.state_dict().items() if is_lora_key(k)}
     if not own:
         raise MotionDataError("LoRA state", "model has no LoRA adapters; call apply_lora first")
+    _check_same_tensors("LoRA state", own, state)
+    model.load_state_dict(state, strict=False)
+
+
+def _check_same_tensors(what: str, own: Mapping[str, Tensor], state: Mapping[str, Tensor]) -> None:
+    """A saved state fits the model's: the same keys, each of the same shape."""
     missing, unexpected = sorted(set(own) - set(state)), sorted(set(state) - set(own))
     if missing or unexpected:
-        raise MotionDataError("LoRA state", f"keys differ: missing {missing[:3]}, unexpected {unexpected[:3]}")
+        raise MotionDataError(what, f"keys differ: missing {missing[:3]}, unexpected {unexpected[:3]}")
     for key, value in state.items():
         if tuple(value.shape) != tuple(own[key].shape):
-            raise MotionDataError("LoRA state", f"{key} has shape {tuple(value.shape)}, model expects {tuple(own[key].shape)}")
-    model.load_state_dict(state, strict=False)
+            raise MotionDataError(what, f"{key} has shape {tuple(value.shape)}, model expects {tuple(own[key].shape)}")
 
 
 def merge_lora(model: nn.Module) -> nn.Module:
@@ -265,16 +270,11 @@ def adapted_biases(model: nn.Module, extra: Iterable[str] = ()) -> dict[str, nn.
     return found
 
 
-def load_biases(model: nn.Module, state: dict[str, Tensor], extra: Iterable[str] = ()) -> None:
-    """Copy trained biases saved under ``adapted_biases`` keys into an adapted model; keys and shapes must match."""
-    own = adapted_biases(model, extra)
-    missing, unexpected = sorted(set(own) - set(state)), sorted(set(state) - set(own))
-    if missing or unexpected:
-        raise MotionDataError("LoRA biases", f"keys differ: missing {missing[:3]}, unexpected {unexpected[:3]}")
+def load_biases(own: dict[str, nn.Parameter], state: dict[str, Tensor]) -> None:
+    """Copy saved biases into ``own`` (what ``adapted_biases`` found, possibly nothing); keys and shapes must match."""
+    _check_same_tensors("LoRA biases", own, state)
     with torch.no_grad():
         for key, value in state.items():
-            if tuple(value.shape) != tuple(own[key].shape):
-                raise MotionDataError("LoRA biases", f"{key} has shape {tuple(value.shape)}, model expects {tuple(own[key].shape)}")
             own[key].copy_(value)
 
 

@@ -63,7 +63,15 @@ from augment.metrics import foot_skating_ratio
 from augment.style_examples import check_motion
 from augment.tempo import TEMPO_RANGE, retime, retime_captions, style_tempo
 from models.lora import DEFAULT_TARGETS as LORA_TARGETS
-from models.lora import adapted_biases, apply_lora, is_lora_key, load_biases, load_lora_state_dict, lora_state_dict, merge_lora
+from models.lora import (
+    adapted_biases,
+    apply_lora,
+    is_lora_key,
+    load_biases,
+    load_lora_state_dict,
+    lora_state_dict,
+    merge_lora,
+)
 from models.motion_encoder import cosine_similarity, semantic_loss
 from models.text_encoder import TextEncoder
 from schemas.captions import Caption
@@ -781,9 +789,7 @@ def rebuild_transfer_model(base: BaseModels, info: OnTheFlyArtifact, weights: Pa
     rank, targets = info.params.lora_rank, info.params.lora_targets
     apply_lora(model, rank, info.params.lora_alpha or float(rank), targets)
     load_lora_state_dict(model, {k: v for k, v in state.items() if is_lora_key(k)})
-    biases = {k: v for k, v in state.items() if not is_lora_key(k)}
-    if biases or info.params.lora_biases:  # biases the params do not name fail on their keys
-        load_biases(model, biases, LORA_OUTPUT_LAYERS if info.params.lora_biases else ())
+    load_biases(_lora_biases(model, info.params), {k: v for k, v in state.items() if not is_lora_key(k)})
     if merge:
         merge_lora(model)
     return model.eval().requires_grad_(False)
