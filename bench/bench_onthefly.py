@@ -2,7 +2,7 @@
 
 Usage: python bench/bench_onthefly.py [--work /tmp/otf-bench] [--size small] [--n-clips 600] [--style proud]
        [--example-content walk] [--n-content 36] [--lora-rank 4] [--threads 2] [--random-base] [--quick]
-       [--skip ablation,content_clock,lora,throughput]
+       [--skip full,ablation,content_clock,lora,throughput]
 
 Protocol: fine-tune on ONE example clip of ``--style`` (a ``--example-content`` clip of the corpus), then transfer
 neutral clips of the OTHER contents. Reported: SRA/CRA with the base models' classifiers (style = target style,
@@ -265,7 +265,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--pretrain-batch", type=int, default=16, help="pretraining batch size (small preset: 64)")
     parser.add_argument("--pretrain-only", action="store_true", help="build the base models and stop")
     parser.add_argument("--quick", action="store_true", help="tiny sizes, few clips: a smoke run")
-    parser.add_argument("--skip", default="", help="comma list of: ablation, content_clock, lora, throughput")
+    parser.add_argument("--skip", default="", help="comma list of: full, ablation, content_clock, lora, throughput")
     parser.add_argument("--params", default="{}", help="JSON overrides of OnTheFlyParams for every variant")
     parser.add_argument("--lora-params", default="{}", help="JSON overrides of OnTheFlyParams for the LoRA variant")
     args = parser.parse_args(argv)
@@ -304,7 +304,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         [ground_truth(c, args.style, True) for c in content], [c.motion for c in content],
         [ground_truth(c, args.style) for c in content],
     )  # fmt: skip
-    variants = {"full": overrides}
+    variants = {} if "full" in skip else {"full": overrides}
     if "ablation" not in skip:
         variants["no_semantic_loss"] = {**overrides, "lambda_s": 0.0}
     if "content_clock" not in skip:
