@@ -114,8 +114,8 @@ class OnTheFlyParams(BaseModel):
     batch_size: int = 8
     lora_rank: int = Field(
         0, description="0: full fine-tune; >0: LoRA adapters on lora_targets (they start at zero: give them a larger "
-        "lr and alpha, but not more passes, which memorise the example; bench/RESULTS.md has the recipes tried and "
-        "how close each came to full fine-tuning)."
+        "lr and alpha, but not more passes, which memorise the example; configs/onthefly-lora-synthetic.yaml is the "
+        "recipe bench/RESULTS.md compares with full fine-tuning)."
     )  # fmt: skip
     lora_alpha: float | None = Field(None, description="LoRA scale numerator; defaults to the rank.")
     lora_targets: tuple[str, ...] = Field(
