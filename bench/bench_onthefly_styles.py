@@ -5,8 +5,8 @@ Usage: python bench/bench_onthefly_styles.py --base-dir DIR --corpus DIR [--work
 
 One example walk per style, the same 36 neutral clips of the other contents, full fine-tuning (the ablation
 is ``bench_onthefly.py``'s); with ``--lora-params``, a LoRA variant beside it on every style, so LoRA is compared
-with full fine-tuning on the styles that are hard, not only on one. Per style: the tempo measured from the example, SRA, CRA,
-root-relative MPJPE gain over the neutral input, the same gain on the content's own clock (``tempo="content"``,
+with full fine-tuning on the hard styles too, not only on one. Per style: the tempo measured from the example,
+SRA, CRA, root-relative MPJPE gain over the neutral input, the same gain on the content's own clock (``tempo="content"``,
 the paper's transfer), the ceiling of such a clock-keeping transfer (``mpjpe_oracle_timing_kept``) and the
 fine-tune time; then the mean over styles. The styles differ in how much of them is posture and how much is
 clock and stride: the clock-keeping figures show what retiming adds.
@@ -80,8 +80,10 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=int(os.environ.get("MOTIONAUG_TORCH_THREADS", "2")))
     args = parser.parse_args()
     skip = ["ablation", "throughput"] + (["content_clock"] if args.no_content_clock else [])
-    lora = [] if args.lora_params is None else ["--lora-params", args.lora_params, "--lora-rank", str(args.lora_rank)]
-    skip += ["lora"] if args.lora_params is None else []
+    if args.lora_params is None:
+        skip, lora = [*skip, "lora"], []
+    else:
+        lora = ["--lora-params", args.lora_params, "--lora-rank", str(args.lora_rank)]
     rows = []
     for style in args.styles.split(","):
         work = args.work / style
