@@ -16,7 +16,7 @@ from typing import IO, TypeVar
 import numpy as np
 from pydantic import BaseModel
 
-from schemas.errors import MotionDataError
+from motionaug.schemas.errors import MotionDataError
 
 
 def temp_path_for(path: str | os.PathLike[str]) -> Path:
@@ -53,11 +53,6 @@ def atomic_open(path: str | os.PathLike[str], mode: str = "wb", fsync: bool = Fa
     with atomic_path(path, fsync=fsync) as tmp:
         with open(tmp, mode.replace("w", "x"), **text_args) as handle:
             yield handle
-
-
-def atomic_write_bytes(path: str | os.PathLike[str], data: bytes, fsync: bool = False) -> None:
-    with atomic_open(path, "wb", fsync=fsync) as handle:
-        handle.write(data)
 
 
 def atomic_write_text(path: str | os.PathLike[str], text: str, fsync: bool = False) -> None:

@@ -31,10 +31,11 @@ def main() -> None:
     parser.add_argument("--clips", type=int, default=200)
     args = parser.parse_args()
     torch.set_num_threads(1)
-    from augment.bvh_export import export_bvh
-    from augment.evaluation import evaluate_run, preview_transfer, write_scores
-    from augment.report import write_report
     from fixtures.evaluation.tiny_run import build_base_models, build_run, make_corpus
+
+    from motionaug.augment.eval.evaluation import evaluate_run, preview_transfer, write_scores
+    from motionaug.augment.eval.report import write_report
+    from motionaug.augment.motion.bvh_export import export_bvh
 
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
@@ -48,14 +49,26 @@ def main() -> None:
         gif, t_gif = timed(lambda: preview_transfer(config.output, clip["source_id"], clip["style"], root / "p.gif"))
         bvh, t_bvh = timed(lambda: export_bvh(config.output, root / "bvh"))
         frames = sum(r["n_frames"] for r in evaluation.scores)
-        print(json.dumps({
-            "stylized_clips": len(evaluation.scores), "frames": frames,
-            "evaluate_s": round(t_eval, 2), "evaluate_clips_per_s": round(len(evaluation.scores) / t_eval, 1),
-            "scores_parquet_s": round(t_scores, 3), "report_s": round(t_report, 2),
-            "gif_preview_s": round(t_gif, 2), "gif_frames": clip["n_frames"], "gif_bytes": gif.stat().st_size,
-            "bvh_export_s": round(t_bvh, 2), "bvh_files": bvh.files, "bvh_with_positions": bvh.with_positions,
-            "bvh_max_error_m": bvh.max_error_m,
-        }, indent=1))  # fmt: skip
+        print(
+            json.dumps(
+                {
+                    "stylized_clips": len(evaluation.scores),
+                    "frames": frames,
+                    "evaluate_s": round(t_eval, 2),
+                    "evaluate_clips_per_s": round(len(evaluation.scores) / t_eval, 1),
+                    "scores_parquet_s": round(t_scores, 3),
+                    "report_s": round(t_report, 2),
+                    "gif_preview_s": round(t_gif, 2),
+                    "gif_frames": clip["n_frames"],
+                    "gif_bytes": gif.stat().st_size,
+                    "bvh_export_s": round(t_bvh, 2),
+                    "bvh_files": bvh.files,
+                    "bvh_with_positions": bvh.with_positions,
+                    "bvh_max_error_m": bvh.max_error_m,
+                },
+                indent=1,
+            )
+        )
 
 
 if __name__ == "__main__":

@@ -11,12 +11,12 @@ MPJPE of the output to the ground-truth stylised rendering of the same clip spec
 the neutral input's (global joints and root-relative joints: the output keeps the neutral path while the
 stylised ground truth walks its own, so the global figure mixes path and pose), and the same
 against the style rendered on the content's own clock and stride (``mpjpe_timing_kept``; ``mpjpe_oracle_timing_kept``
-scores that rendering itself against the ground truth: the ceiling of a method that keeps the content's timing), fine-tune
-seconds, the ablation without L_s, the paper's content clock (``tempo="content"``: no retiming to the style's tempo
-measured from the example), LoRA vs full fine-tuning, and transfer throughput (small/paper, fp32/bf16).
+scores that rendering itself against the ground truth: the ceiling of a method that keeps the content's timing),
+fine-tune seconds, the ablation without L_s, the paper's content clock (``tempo="content"``: no retiming to the
+style's tempo measured from the example), LoRA vs full fine-tuning, and transfer throughput (small/paper, fp32/bf16).
 
-Base models come from ``augment.pretrain.ensure_base_models(corpus, out, size)``; with ``--random-base`` (or when
-that module is absent) they are random of ``--size`` and the classifier figures are left out (null).
+Base models come from ``augment.training.pretrain.ensure_base_models(corpus, out, size)``; with ``--random-base``
+(or when that module is absent) they are random of ``--size`` and the classifier figures are left out (null).
 ``--quick``: tiny sizes and few clips, a smoke run in well under a minute.
 """
 
@@ -35,23 +35,23 @@ from typing import Any
 import numpy as np
 import torch
 
-from augment.base_models import BaseModels, BaseModelsInfo, config_dict
-from augment.clip import MotionClip
-from augment.evaluation_inputs import features_to_joints, pad_batch
-from augment.methods.base import TransferOutput
-from augment.methods.onthefly import OnTheFlyMethod, OnTheFlyModel, longest_frames, parse_params, retimed
-from augment.metrics import mpjpe, recognition_accuracy
-from augment.style_examples import load_style_examples
-from models.mdm import MDM, MDMConfig
-from models.motion_encoder import MotionEncoder, MotionEncoderConfig
-from schemas.skeleton import T2M
-from schemas.styles import StyleExample, StyleSpec, StyleWords
+from motionaug.augment.corpus.clip import MotionClip
+from motionaug.augment.corpus.style_examples import load_style_examples
+from motionaug.augment.eval.inputs import features_to_joints, pad_batch
+from motionaug.augment.eval.metrics import mpjpe, recognition_accuracy
+from motionaug.augment.methods.base import TransferOutput
+from motionaug.augment.methods.onthefly import OnTheFlyMethod, OnTheFlyModel, longest_frames, parse_params, retimed
+from motionaug.augment.training.base_models import BaseModels, BaseModelsInfo, config_dict
+from motionaug.models.mdm import MDM, MDMConfig
+from motionaug.models.motion_encoder import MotionEncoder, MotionEncoderConfig
+from motionaug.schemas.skeleton import T2M
+from motionaug.schemas.styles import StyleExample, StyleSpec, StyleWords
 
 
 def load_corpus(work: Path, n_clips: int, seed: int) -> tuple[Path, list[MotionClip]]:
     """The default synthetic corpus under ``work/corpus`` (generated once), read back with its specs."""
-    from augment.corpus.humanml3d import HumanML3DReader
-    from augment.synth.corpus import generate_corpus, read_labels
+    from motionaug.augment.corpus.humanml3d import HumanML3DReader
+    from motionaug.augment.synth.corpus import generate_corpus, read_labels
 
     root = work / "corpus"
     if not (root / "labels.jsonl").is_file():
@@ -69,23 +69,27 @@ def load_corpus(work: Path, n_clips: int, seed: int) -> tuple[Path, list[MotionC
 
 def random_base(size: str, normalizer_dir: Path, out: Path) -> Path:
     """Random base models of a named size (no classifiers), Mean/Std from the corpus: timing and smoke runs."""
-    from augment.features import Normalizer
+    from motionaug.augment.motion.features import Normalizer
 
     torch.manual_seed(0)
     prior_cfg, enc_cfg = MDMConfig.named(size), MotionEncoderConfig.named(size)
     info = BaseModelsInfo(size=size, max_frames=240, prior=config_dict(prior_cfg), motion_encoder=config_dict(enc_cfg))
-    base = BaseModels(info=info, prior=MDM(prior_cfg), motion_encoder=MotionEncoder(enc_cfg),
-                      normalizer=Normalizer.load(normalizer_dir))  # fmt: skip
+    base = BaseModels(
+        info=info,
+        prior=MDM(prior_cfg),
+        motion_encoder=MotionEncoder(enc_cfg),
+        normalizer=Normalizer.load(normalizer_dir),
+    )
     return base.save(out)
 
 
 def get_base(work: Path, corpus_dir: Path, size: str, random: bool, caps: dict[str, float]) -> tuple[Path, bool]:
-    """(base-models folder, whether it is pretrained). ``caps``: PretrainConfig overrides (time caps, batch) for 2 cores."""
+    """(base-models folder, whether it is pretrained). ``caps``: PretrainConfig overrides for 2 cores."""
     if not random:
         try:
-            from augment.pretrain import PretrainConfig, ensure_base_models
+            from motionaug.augment.training.pretrain import PretrainConfig, ensure_base_models
         except ImportError:
-            print("augment.pretrain is not available: random base models, no classifier figures")
+            print("motionaug.augment.training.pretrain is not available: random base models, no classifier figures")
         else:
             config = PretrainConfig.for_size(size, **{k: v for k, v in caps.items() if v})
             return Path(ensure_base_models(corpus_dir, work / f"base-{size}", size, config=config)), True
@@ -96,13 +100,15 @@ def get_base(work: Path, corpus_dir: Path, size: str, random: bool, caps: dict[s
 
 
 def style_words(style: str) -> StyleWords:
-    from augment.synth.styles import STYLE_WORDS
+    from motionaug.augment.synth.styles import STYLE_WORDS
 
     w = STYLE_WORDS[style]
     return StyleWords(adjective=w.adjective, adverb=w.adverb, phrases=tuple(w.phrases))
 
 
-def pick_clips(clips: Sequence[MotionClip], style: str, content: str, n_content: int) -> tuple[MotionClip, list[MotionClip]]:
+def pick_clips(
+    clips: Sequence[MotionClip], style: str, content: str, n_content: int
+) -> tuple[MotionClip, list[MotionClip]]:
     """One ``style`` clip of ``content`` (train split if marked), and neutral clips of every other content."""
     candidates = [c for c in clips if c.style == style and c.content == content]
     train = [c for c in candidates if c.meta.get("split") == "train"] or candidates
@@ -129,9 +135,9 @@ def ground_truth(clip: MotionClip, style: str, keep_timing: bool = False) -> np.
     """
     import dataclasses
 
-    from augment.features import extract_features
-    from augment.synth import ClipSpec, render
-    from augment.synth.styles import style_params
+    from motionaug.augment.motion.features import extract_features
+    from motionaug.augment.synth import ClipSpec, render
+    from motionaug.augment.synth.styles import style_params
 
     spec = ClipSpec.from_json(clip.meta["spec"]).with_style(style)
     params = dataclasses.replace(style_params(style), tempo=1.0, hesitation=0.0, step=1.0) if keep_timing else None
@@ -146,7 +152,9 @@ LEG_JOINTS = [i for i, name in enumerate(T2M.joint_names) if any(k in name for k
 UPPER_JOINTS = [i for i in range(1, len(T2M.joint_names)) if i not in LEG_JOINTS]
 
 
-def pose_errors(outputs: Sequence[np.ndarray], inputs: Sequence[np.ndarray], targets: Sequence[np.ndarray]) -> dict[str, float]:
+def pose_errors(
+    outputs: Sequence[np.ndarray], inputs: Sequence[np.ndarray], targets: Sequence[np.ndarray]
+) -> dict[str, float]:
     """Mean MPJPE (m) of outputs and of inputs to the targets: global, root-relative (pelvis subtracted), and
     root-relative over the legs and over the upper body (pelvis excluded), to see which part a style moves."""
     keys = ("global", "local", "legs", "upper")
@@ -181,14 +189,25 @@ def accuracies(base: BaseModels, motions: Sequence[np.ndarray], contents: Sequen
     said = Counter(base.info.style_labels[i] for i in style_logits.argmax(-1).tolist())
     content_said = [base.info.content_labels[i] for i in content_logits.argmax(-1).tolist()]
     missed = Counter(f"{c} -> {p}" for c, p in zip(contents, content_said) if c != p)
-    return {"sra": recognition_accuracy(style_logits, s_idx), "cra": recognition_accuracy(content_logits, c_idx),
-            "styles_predicted": dict(said.most_common()), "contents_missed": dict(missed.most_common())}  # fmt: skip
+    return {
+        "sra": recognition_accuracy(style_logits, s_idx),
+        "cra": recognition_accuracy(content_logits, c_idx),
+        "styles_predicted": dict(said.most_common()),
+        "contents_missed": dict(missed.most_common()),
+    }
 
 
 def run_variant(
-    name: str, params: dict[str, Any], spec: StyleSpec, examples: list[MotionClip], base_dir: Path,
-    corpus: Sequence[MotionClip], content: list[MotionClip], work: Path, style: str,
-) -> dict[str, Any]:  # fmt: skip
+    name: str,
+    params: dict[str, Any],
+    spec: StyleSpec,
+    examples: list[MotionClip],
+    base_dir: Path,
+    corpus: Sequence[MotionClip],
+    content: list[MotionClip],
+    work: Path,
+    style: str,
+) -> dict[str, Any]:
     """Fine-tune one variant, transfer the content clips, score them."""
     method = OnTheFlyMethod(parse_params(params))
     start = time.perf_counter()
@@ -208,23 +227,38 @@ def run_variant(
     inputs_retimed = [retimed(c.motion, model.tempo, model.base, longest) for c in content]
     k = max(1, len(curve) // 10)
     return {
-        "variant": name, "prepare_s": prepare_s, "finetune_s": info["timings"].get("finetune_s"),
-        "pairs_and_pool_s": info["timings"].get("pairs_and_pool_s"), "steps": len(curve),
-        "pool_clips": info["pool_clips"], "tempo": info["tempo"], "tempo_note": info["tempo_note"],
+        "variant": name,
+        "prepare_s": prepare_s,
+        "finetune_s": info["timings"].get("finetune_s"),
+        "pairs_and_pool_s": info["timings"].get("pairs_and_pool_s"),
+        "steps": len(curve),
+        "pool_clips": info["pool_clips"],
+        "tempo": info["tempo"],
+        "tempo_note": info["tempo_note"],
         "weights_bytes": info["weights_bytes"],
         "weights_share": info["weights_bytes"] / info["full_model_bytes"],
-        "l_rec_first_last": [float(np.mean([r["l_rec"] for r in curve[:k]])), float(np.mean([r["l_rec"] for r in curve[-k:]]))],
-        "l_s_first_last": [float(np.mean([r["l_s"] for r in curve[:k]])), float(np.mean([r["l_s"] for r in curve[-k:]]))],
-        "transferred": len(done), "rejected": len(outs) - len(done), "transfer_clips_per_s": len(done) / transfer_s,
+        "l_rec_first_last": [
+            float(np.mean([r["l_rec"] for r in curve[:k]])),
+            float(np.mean([r["l_rec"] for r in curve[-k:]])),
+        ],
+        "l_s_first_last": [
+            float(np.mean([r["l_s"] for r in curve[:k]])),
+            float(np.mean([r["l_s"] for r in curve[-k:]])),
+        ],
+        "transferred": len(done),
+        "rejected": len(outs) - len(done),
+        "transfer_clips_per_s": len(done) / transfer_s,
         **accuracies(model.base, motions, contents, style),
         "input_accuracy": accuracies(model.base, [c.motion for c in content], contents, style),
         # what the classifiers make of the inputs at the variant's tempo (before any transfer) and of the ground truth
         "retimed_input_accuracy": accuracies(model.base, inputs_retimed, contents, style),
         "ground_truth_accuracy": accuracies(model.base, targets, contents, style),
         "mpjpe": pose_errors(motions, [c.motion for c in content], targets),
-        "mpjpe_timing_kept": pose_errors(motions, [c.motion for c in content], [ground_truth(c, style, True) for c in content]),
+        "mpjpe_timing_kept": pose_errors(
+            motions, [c.motion for c in content], [ground_truth(c, style, True) for c in content]
+        ),
         "mean_scores": {key: float(np.mean([o.scores[key] for o in done])) for key in done[0].scores} if done else {},
-    }  # fmt: skip
+    }
 
 
 def throughput(
@@ -243,7 +277,9 @@ def throughput(
             start = time.perf_counter()
             outs = model.transfer(content)
             seconds = time.perf_counter() - start
-            rows.append({"size": size, "bf16": bf16, "clips": len(outs), "batch": batch, "clips_per_s": len(outs) / seconds})
+            rows.append(
+                {"size": size, "bf16": bf16, "clips": len(outs), "batch": batch, "clips_per_s": len(outs) / seconds}
+            )
     return rows
 
 
@@ -274,7 +310,12 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     skip = set(filter(None, args.skip.split(",")))
     overrides = json.loads(args.params)
     if args.quick:
-        args.size, args.n_clips, args.n_content, args.random_base = "tiny", min(args.n_clips, 48), min(args.n_content, 4), True
+        args.size, args.n_clips, args.n_content, args.random_base = (
+            "tiny",
+            min(args.n_clips, 48),
+            min(args.n_content, 4),
+            True,
+        )
         overrides = {"pair_steps": 20, "max_steps": 2, "batch_size": 4, **overrides}
     args.work.mkdir(parents=True, exist_ok=True)
     corpus_dir, corpus = load_corpus(args.work, args.n_clips, args.seed)
@@ -288,22 +329,34 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         return {"base_dir": str(base_dir)}
     example, content = pick_clips(corpus, args.style, args.example_content, args.n_content)
     words = style_words(args.style)
-    description = next((c.text for c in example.captions if words.adjective in c.text or (words.adverb or "@") in c.text
-                        or any(p in c.text for p in words.phrases)), f"a person walks {words.adverb or words.phrases[0]}")
+    description = next(
+        (
+            c.text
+            for c in example.captions
+            if words.adjective in c.text or (words.adverb or "@") in c.text or any(p in c.text for p in words.phrases)
+        ),
+        f"a person walks {words.adverb or words.phrases[0]}",
+    )
     spec = StyleSpec(name=args.style, words=words, examples=[StyleExample(source=example.id, description=description)])
     examples = load_style_examples(spec, {example.id: example})
     pool = [c for c in corpus if c.id != example.id and c not in content]
     report: dict[str, Any] = {
-        "args": {k: str(v) for k, v in vars(args).items()}, "pretrained_base": pretrained, "base_dir": str(base_dir),
+        "args": {k: str(v) for k, v in vars(args).items()},
+        "pretrained_base": pretrained,
+        "base_dir": str(base_dir),
         "example": {"id": example.id, "content": example.content, "description": description},
-        "n_content": len(content), "contents": sorted({c.content or "" for c in content}), "corpus_clips": len(corpus),
-        "threads": torch.get_num_threads(), "uptime_before": subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip(),
-    }  # fmt: skip
+        "n_content": len(content),
+        "contents": sorted({c.content or "" for c in content}),
+        "corpus_clips": len(corpus),
+        "threads": torch.get_num_threads(),
+        "uptime_before": subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip(),
+    }
     # the best any trajectory-keeping method can do: the style rendered perfectly on the content's clock and stride
     report["mpjpe_oracle_timing_kept"] = pose_errors(
-        [ground_truth(c, args.style, True) for c in content], [c.motion for c in content],
+        [ground_truth(c, args.style, True) for c in content],
+        [c.motion for c in content],
         [ground_truth(c, args.style) for c in content],
-    )  # fmt: skip
+    )
     variants = {} if "full" in skip else {"full": overrides}
     if "ablation" not in skip:
         variants["no_semantic_loss"] = {**overrides, "lambda_s": 0.0}
@@ -313,8 +366,9 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         lora_lr = 10 * overrides.get("lr", 1e-4)  # adapters start at zero and learn slower: the usual 10x rate
         lora = {"lr": lora_lr, **overrides, "lora_rank": args.lora_rank, **json.loads(args.lora_params)}
         variants[f"lora{args.lora_rank}"] = lora
-    report["variants"] = [run_variant(n, p, spec, examples, base_dir, pool, content, args.work, args.style)
-                          for n, p in variants.items()]  # fmt: skip
+    report["variants"] = [
+        run_variant(n, p, spec, examples, base_dir, pool, content, args.work, args.style) for n, p in variants.items()
+    ]
     if "throughput" not in skip:
         sizes = ["tiny"] if args.quick else ["small", "paper"]
         report["throughput"] = throughput(sizes, content, spec, corpus_dir, args.work, batch=8)

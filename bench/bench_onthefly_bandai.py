@@ -28,18 +28,18 @@ from typing import Any
 
 import numpy as np
 import torch
-
-from augment.base_models import BaseModels
-from augment.corpus.humanml3d import HumanML3DReader, read_labels
-from augment.evaluator_training import fit_classifier
-from augment.evaluation_inputs import pad_batch
-from augment.methods.base import TransferOutput
-from augment.methods.onthefly import OnTheFlyMethod, parse_params
-from augment.metrics import recognition_accuracy
-from augment.style_examples import load_style_examples
 from bench_onthefly import _joints, accuracies, load_corpus, pick_clips, style_words
-from models.evaluators import make_classifier
-from schemas.styles import StyleExample, StyleSpec
+
+from motionaug.augment.corpus.humanml3d import HumanML3DReader, read_labels
+from motionaug.augment.corpus.style_examples import load_style_examples
+from motionaug.augment.eval.inputs import pad_batch
+from motionaug.augment.eval.metrics import recognition_accuracy
+from motionaug.augment.methods.base import TransferOutput
+from motionaug.augment.methods.onthefly import OnTheFlyMethod, parse_params
+from motionaug.augment.training.base_models import BaseModels
+from motionaug.augment.training.evaluators import fit_classifier
+from motionaug.models.evaluators import make_classifier
+from motionaug.schemas.styles import StyleExample, StyleSpec
 
 
 def bandai_clips(root: Path) -> list[Any]:
@@ -67,7 +67,9 @@ def bandai_judges(clips: list[Any], seed: int = 0) -> dict[str, tuple[Any, list[
     return judges
 
 
-def judge(judges: dict[str, tuple[Any, list[str]]], motions: list[np.ndarray], contents: list[str], style: str) -> dict[str, float]:
+def judge(
+    judges: dict[str, tuple[Any, list[str]]], motions: list[np.ndarray], contents: list[str], style: str
+) -> dict[str, float]:
     joints, mask = pad_batch([_joints(m) for m in motions])
     out = {}
     with torch.no_grad():
@@ -95,13 +97,19 @@ def main() -> None:
     real = bandai_clips(args.bandai)
     example = next(c for c in real if c.style == args.style and c.content == args.example_content)
     words = style_words(args.style)
-    spec = StyleSpec(name=args.style, words=words, examples=[
-        StyleExample(source=example.id, description=f"a person walks {words.adverb or words.phrases[0]}")])  # fmt: skip
+    spec = StyleSpec(
+        name=args.style,
+        words=words,
+        examples=[StyleExample(source=example.id, description=f"a person walks {words.adverb or words.phrases[0]}")],
+    )
     examples = load_style_examples(spec, {example.id: example})
     _, synthetic_content = pick_clips(synthetic, "neutral", args.example_content, args.n_content)
     # takes run up to a minute; transfer (and the evaluators) take HumanML3D-length clips: the first 196 frames
-    real_content = [dataclasses.replace(c, motion=c.motion[:196]) for c in real
-                    if c.style == "normal" and c.content != args.example_content]  # fmt: skip
+    real_content = [
+        dataclasses.replace(c, motion=c.motion[:196])
+        for c in real
+        if c.style == "normal" and c.content != args.example_content
+    ]
     pool = [c for c in synthetic if c.style == "neutral" and c not in synthetic_content]
 
     method = OnTheFlyMethod(parse_params(json.loads(args.params)))
@@ -110,8 +118,12 @@ def main() -> None:
     prepare_s = time.perf_counter() - start
     model = method.load(artifact, args.base_dir)
     base = BaseModels.load(args.base_dir)
-    report: dict[str, Any] = {"example": example.id, "style": args.style, "prepare_s": round(prepare_s, 1),
-                              "params": json.loads(args.params)}  # fmt: skip
+    report: dict[str, Any] = {
+        "example": example.id,
+        "style": args.style,
+        "prepare_s": round(prepare_s, 1),
+        "params": json.loads(args.params),
+    }
     for name, content in (("synthetic", synthetic_content), ("bandai", real_content)):
         outs = model.transfer(content, seed=0)
         done = [(o, c) for o, c in zip(outs, content) if isinstance(o, TransferOutput)]
@@ -121,8 +133,13 @@ def main() -> None:
         else:
             judges = bandai_judges(real)
             scores, before = (judge(judges, m, contents, args.style) for m in (motions, [c.motion for _, c in done]))
-        report[name] = {"clips": len(content), "transferred": len(done), **scores, "input": before,
-                        "contents": sorted(set(contents))}  # fmt: skip
+        report[name] = {
+            "clips": len(content),
+            "transferred": len(done),
+            **scores,
+            "input": before,
+            "contents": sorted(set(contents)),
+        }
     (args.work / "bench_onthefly_bandai.json").write_text(json.dumps(report, indent=2))
     print(json.dumps(report, indent=2))
 

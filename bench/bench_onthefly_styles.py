@@ -6,10 +6,10 @@ Usage: python bench/bench_onthefly_styles.py --base-dir DIR --corpus DIR [--work
 One example walk per style, the same 36 neutral clips of the other contents, full fine-tuning (the ablation
 is ``bench_onthefly.py``'s); with ``--lora-params``, a LoRA variant beside it on every style, so LoRA is compared
 with full fine-tuning on the hard styles too, not only on one. Per style: the tempo measured from the example,
-SRA, CRA, root-relative MPJPE gain over the neutral input, the same gain on the content's own clock (``tempo="content"``,
-the paper's transfer), the ceiling of such a clock-keeping transfer (``mpjpe_oracle_timing_kept``) and the
-fine-tune time; then the mean over styles. The styles differ in how much of them is posture and how much is
-clock and stride: the clock-keeping figures show what retiming adds.
+SRA, CRA, root-relative MPJPE gain over the neutral input, the same gain on the content's own clock
+(``tempo="content"``, the paper's transfer), the ceiling of such a clock-keeping transfer
+(``mpjpe_oracle_timing_kept``) and the fine-tune time; then the mean over styles. The styles differ in how much
+of them is posture and how much is clock and stride: the clock-keeping figures show what retiming adds.
 Writes ``WORK/styles.json`` and prints a Markdown table.
 """
 
@@ -22,7 +22,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
 from bench_onthefly import main as bench_one
 
 
@@ -30,19 +29,33 @@ def row(style: str, report: dict[str, Any]) -> dict[str, Any]:
     variants = {v["variant"]: v for v in report["variants"]}
     full = variants["full"]
     out = {
-        "style": style, "tempo": full["tempo"], "sra": full["sra"], "cra": full["cra"],
-        "mpjpe_gain": full["mpjpe"]["reduction_local"], "ceiling": report["mpjpe_oracle_timing_kept"]["reduction_local"],
-        "legs_gain": full["mpjpe"]["reduction_legs"], "upper_gain": full["mpjpe"]["reduction_upper"],
-        "finetune_s": full["finetune_s"], "example": report["example"]["id"],
-    }  # fmt: skip
+        "style": style,
+        "tempo": full["tempo"],
+        "sra": full["sra"],
+        "cra": full["cra"],
+        "mpjpe_gain": full["mpjpe"]["reduction_local"],
+        "ceiling": report["mpjpe_oracle_timing_kept"]["reduction_local"],
+        "legs_gain": full["mpjpe"]["reduction_legs"],
+        "upper_gain": full["mpjpe"]["reduction_upper"],
+        "finetune_s": full["finetune_s"],
+        "example": report["example"]["id"],
+    }
     if "content_clock" in variants:
         kept = variants["content_clock"]
-        out |= {"content_clock_sra": kept["sra"], "content_clock_cra": kept["cra"],
-                "content_clock_gain": kept["mpjpe"]["reduction_local"]}  # fmt: skip
+        out |= {
+            "content_clock_sra": kept["sra"],
+            "content_clock_cra": kept["cra"],
+            "content_clock_gain": kept["mpjpe"]["reduction_local"],
+        }
     lora = next((v for name, v in variants.items() if name.startswith("lora")), None)
     if lora is not None:
-        out |= {"lora_sra": lora["sra"], "lora_cra": lora["cra"], "lora_gain": lora["mpjpe"]["reduction_local"],
-                "lora_share": lora["weights_share"], "lora_finetune_s": lora["finetune_s"]}  # fmt: skip
+        out |= {
+            "lora_sra": lora["sra"],
+            "lora_cra": lora["cra"],
+            "lora_gain": lora["mpjpe"]["reduction_local"],
+            "lora_share": lora["weights_share"],
+            "lora_finetune_s": lora["finetune_s"],
+        }
     return out
 
 
@@ -54,8 +67,14 @@ def table(rows: list[dict[str, Any]]) -> str:
     head += ["ceiling (content clock)", "fine-tune s"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
-        cells = [r["style"], f"{r['tempo']:.2f}", f"{r['sra']:.0%}", f"{r['cra']:.0%}", f"{r['mpjpe_gain']:.1%}",
-                 f"{r['upper_gain']:.0%} / {r['legs_gain']:.0%}"]  # fmt: skip
+        cells = [
+            r["style"],
+            f"{r['tempo']:.2f}",
+            f"{r['sra']:.0%}",
+            f"{r['cra']:.0%}",
+            f"{r['mpjpe_gain']:.1%}",
+            f"{r['upper_gain']:.0%} / {r['legs_gain']:.0%}",
+        ]
         if clock:
             cells.append(f"{r['content_clock_sra']:.0%} / {r['content_clock_cra']:.0%} / {r['content_clock_gain']:.1%}")
         if lora:
@@ -66,7 +85,7 @@ def table(rows: list[dict[str, Any]]) -> str:
 
 
 def main() -> None:
-    from augment.synth.styles import STYLES
+    from motionaug.augment.synth.styles import STYLES
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--base-dir", type=Path, required=True)
@@ -90,10 +109,23 @@ def main() -> None:
         work.mkdir(parents=True, exist_ok=True)
         if not (work / "corpus").exists():
             (work / "corpus").symlink_to(args.corpus.resolve())
-        report = bench_one([
-            "--work", str(work), "--base-dir", str(args.base_dir), "--style", style, "--params", args.params,
-            "--skip", ",".join(skip), "--threads", str(args.threads), *lora,
-        ])  # fmt: skip
+        report = bench_one(
+            [
+                "--work",
+                str(work),
+                "--base-dir",
+                str(args.base_dir),
+                "--style",
+                style,
+                "--params",
+                args.params,
+                "--skip",
+                ",".join(skip),
+                "--threads",
+                str(args.threads),
+                *lora,
+            ]
+        )
         rows.append(row(style, report))
     keys = [k for k, v in rows[0].items() if isinstance(v, float)]
     mean = {"style": "mean", "example": "", **{k: float(np.mean([r[k] for r in rows])) for k in keys}}

@@ -23,8 +23,8 @@ from pathlib import Path
 
 import torch
 
-from augment.pretrain import PretrainConfig, fit_evaluators, pretrain
-from augment.synth import generate_corpus
+from motionaug.augment.synth import generate_corpus
+from motionaug.augment.training.pretrain import PretrainConfig, fit_evaluators, pretrain
 
 
 def parse_sets(items: list[str]) -> dict[str, object]:
@@ -74,9 +74,13 @@ def synthetic(args: argparse.Namespace) -> dict[str, object]:
     info = pretrain(corpus, base, config, progress=timer)
     end = time.perf_counter()
     return {
-        "size": args.size, "total_seconds": round(end - start, 1), "stage_seconds": timer.stage_seconds(end),
-        "metrics": info.metrics, "config": config.model_dump(exclude_defaults=True), "load": os.getloadavg(),
-    }  # fmt: skip
+        "size": args.size,
+        "total_seconds": round(end - start, 1),
+        "stage_seconds": timer.stage_seconds(end),
+        "metrics": info.metrics,
+        "config": config.model_dump(exclude_defaults=True),
+        "load": os.getloadavg(),
+    }
 
 
 def bandai(args: argparse.Namespace) -> dict[str, object]:

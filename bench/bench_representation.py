@@ -1,6 +1,6 @@
 """Data-layer figures: feature recovery and round-trip errors on real data, and every Bandai BVH parsed.
 
-    .venv/bin/python bench/bench_representation.py [--shared ../shared/data]
+.venv/bin/python bench/bench_representation.py [--shared ../shared/data]
 """
 
 from __future__ import annotations
@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from augment.bvh import read_bvh
-from augment.features import extract_features_and_joints, recover_from_ric, recover_from_rot
-from augment.synth.animator import ClipSpec, render
-from schemas.errors import MotionDataError
+from motionaug.augment.motion.bvh import read_bvh
+from motionaug.augment.motion.features import extract_features_and_joints, recover_from_ric, recover_from_rot
+from motionaug.augment.synth.animator import ClipSpec, render
+from motionaug.schemas.errors import MotionDataError
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -40,9 +40,14 @@ def main() -> None:
     err = np.abs(recover_from_ric(torch.from_numpy(vecs), 22).numpy() - joints).max()
     print(f"recover_from_ric(new_joint_vecs/012314) vs new_joints/012314: max abs error {err:.2e} m")
     ric, rot = round_trip_error(joints.astype(np.float64))
-    print(f"round trip joints -> features -> joints, real clip 012314: {ric:.2e} m (recover_from_rot vs ric {rot:.2e} m)")
-    worst = max(round_trip_error(render(ClipSpec(content=c, style=s, duration=4.0)).joints.astype(np.float64))[0]
-                for c in ("walk", "walk_curve", "jump", "kick", "turn") for s in ("neutral", "old", "strutting"))  # fmt: skip
+    print(
+        f"round trip joints -> features -> joints, real clip 012314: {ric:.2e} m (recover_from_rot vs ric {rot:.2e} m)"
+    )
+    worst = max(
+        round_trip_error(render(ClipSpec(content=c, style=s, duration=4.0)).joints.astype(np.float64))[0]
+        for c in ("walk", "walk_curve", "jump", "kick", "turn")
+        for s in ("neutral", "old", "strutting")
+    )
     print(f"round trip, 15 synthetic clips (walk, curve, jump, kick, turn x 3 styles): worst {worst:.2e} m")
     files = sorted((args.shared / "bandai").rglob("*.bvh"))
     start, parsed, frames, mismatched, failed = time.perf_counter(), 0, 0, 0, []
@@ -52,11 +57,15 @@ def main() -> None:
         except MotionDataError as err:
             failed.append(str(err))
             continue
-        header = int(next(line for line in path.read_text().splitlines() if line.strip().startswith("Frames:")).split()[1])
+        header = int(
+            next(line for line in path.read_text().splitlines() if line.strip().startswith("Frames:")).split()[1]
+        )
         mismatched += motion.n_frames != header
         parsed, frames = parsed + 1, frames + motion.n_frames
-    print(f"BVH: {parsed} of {len(files)} files parsed ({frames} frames, {mismatched} frame counts off the header) "
-          f"in {time.perf_counter() - start:.1f} s; refused: {failed}")  # fmt: skip
+    print(
+        f"BVH: {parsed} of {len(files)} files parsed ({frames} frames, {mismatched} frame counts off the header) "
+        f"in {time.perf_counter() - start:.1f} s; refused: {failed}"
+    )
 
 
 if __name__ == "__main__":

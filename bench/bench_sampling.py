@@ -3,7 +3,8 @@
 Usage: python bench/bench_sampling.py [--config paper] [--batch 16] [--frames 196] [--steps 20] [--threads 2]
        [--repeats 1] [--ragged] [--guidance 2.5]
 Reports clips/s and achieved GFLOP/s (analytic FLOPs of the network, see ``forward_flops``) next to the GFLOP/s
-of a 2048x2048 matmul in the same dtype on the same threads (FLOPs count padded frames too). Weights are random: speed does not depend on them.
+of a 2048x2048 matmul in the same dtype on the same threads (FLOPs count padded frames too). Weights are random:
+speed does not depend on them.
 """
 
 from __future__ import annotations
@@ -15,11 +16,13 @@ from collections.abc import Callable
 
 import torch
 
-from augment.diffusion import bind_model, ddim_sample
-from models.mdm import MDM, MDMConfig
+from motionaug.augment.diffusion import bind_model, ddim_sample
+from motionaug.models.mdm import MDM, MDMConfig
 
 
-def best_seconds(fn: Callable[[], object], repeats: int, warmup: Callable[[], object] | None = None) -> tuple[float, float]:
+def best_seconds(
+    fn: Callable[[], object], repeats: int, warmup: Callable[[], object] | None = None
+) -> tuple[float, float]:
     """(wall, process CPU) seconds of the fastest of ``repeats`` calls after a warm-up call.
 
     On shared cores the fastest run is the least disturbed one; CPU / (wall x threads) near 1 says it was not.
@@ -64,7 +67,9 @@ def sample_seconds(
 
     def run() -> torch.Tensor:
         with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
-            return ddim_sample(model_fn, shape, steps=steps, guidance_scale=guidance, generator=torch.Generator().manual_seed(0))
+            return ddim_sample(
+                model_fn, shape, steps=steps, guidance_scale=guidance, generator=torch.Generator().manual_seed(0)
+            )
 
     def one_forward() -> torch.Tensor:
         with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
@@ -82,7 +87,9 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--ragged", action="store_true", help="pad half of the batch to half length")
-    parser.add_argument("--guidance", type=float, default=None, help="classifier-free guidance scale (2 forwards per step)")
+    parser.add_argument(
+        "--guidance", type=float, default=None, help="classifier-free guidance scale (2 forwards per step)"
+    )
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
@@ -90,16 +97,30 @@ def main() -> None:
     model = MDM(config).eval()
     calls = args.steps * (1 if args.guidance is None else 2)
     flops = forward_flops(config, args.batch, args.frames) * calls
-    report: dict[str, object] = {"config": args.config, "batch": args.batch, "frames": args.frames, "steps": args.steps,
-                                 "threads": args.threads, "guidance": args.guidance, "ragged": args.ragged, "gflop_per_sample_call": flops / 1e9}
+    report: dict[str, object] = {
+        "config": args.config,
+        "batch": args.batch,
+        "frames": args.frames,
+        "steps": args.steps,
+        "threads": args.threads,
+        "guidance": args.guidance,
+        "ragged": args.ragged,
+        "gflop_per_sample_call": flops / 1e9,
+    }
     for name, dtype, bf16 in (("fp32", torch.float32, False), ("bf16", torch.bfloat16, True)):
         ceiling = matmul_gflops(dtype)
-        seconds, cpu = sample_seconds(model, args.batch, args.frames, args.steps, bf16, args.guidance, args.repeats, args.ragged)
+        seconds, cpu = sample_seconds(
+            model, args.batch, args.frames, args.steps, bf16, args.guidance, args.repeats, args.ragged
+        )
         achieved = flops / seconds / 1e9
-        report[name] = {"seconds": round(seconds, 3), "clips_per_s": round(args.batch / seconds, 3),
-                        "gflops": round(achieved, 1), "matmul_ceiling_gflops": round(ceiling, 1),
-                        "fraction_of_ceiling": round(achieved / ceiling, 3),
-                        "cpu_utilisation": round(cpu / (seconds * args.threads), 2)}
+        report[name] = {
+            "seconds": round(seconds, 3),
+            "clips_per_s": round(args.batch / seconds, 3),
+            "gflops": round(achieved, 1),
+            "matmul_ceiling_gflops": round(ceiling, 1),
+            "fraction_of_ceiling": round(achieved / ceiling, 3),
+            "cpu_utilisation": round(cpu / (seconds * args.threads), 2),
+        }
     print(json.dumps(report, indent=2))
 
 

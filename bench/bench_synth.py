@@ -22,7 +22,7 @@ import torch
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from augment.synth.corpus import generate_corpus, linear_probe_predict, pooled_descriptor, read_labels  # noqa: E402
+from motionaug.augment.synth.corpus import generate_corpus, linear_probe_predict, pooled_descriptor, read_labels  # noqa: E402
 
 STYLE_MIN, CONTENT_MIN = 0.90, 0.95
 
@@ -52,16 +52,20 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         root = args.out or Path(tmp) / "synth"
         summary = generate_corpus(root, args.n_clips, seed=args.seed)
-        print(f"generated {summary.n_clips} clips ({summary.frames} frames) in {summary.seconds:.1f} s "
-              f"-> {summary.n_clips / summary.seconds:.1f} clips/s; splits {summary.splits}")
+        print(
+            f"generated {summary.n_clips} clips ({summary.frames} frames) in {summary.seconds:.1f} s "
+            f"-> {summary.n_clips / summary.seconds:.1f} clips/s; splits {summary.splits}"
+        )
         x, labels = load_pooled(root)
     split = np.array([r["split"] for r in labels])
     train, test = np.flatnonzero(split != "test"), np.flatnonzero(split == "test")
     styles, contents = [r["style"] for r in labels], [r["content"] for r in labels]
     style_acc, style_per = probe(x, styles, train, test, styles)
     content_acc, content_per = probe(x, contents, train, test, styles)
-    print(f"held-out ({len(test)} clips): style accuracy {style_acc:.3f} (need {STYLE_MIN}), "
-          f"content accuracy {content_acc:.3f} (need {CONTENT_MIN})")
+    print(
+        f"held-out ({len(test)} clips): style accuracy {style_acc:.3f} (need {STYLE_MIN}), "
+        f"content accuracy {content_acc:.3f} (need {CONTENT_MIN})"
+    )
     print("style accuracy per style:", {k: round(v, 3) for k, v in style_per.items()})
     print("content accuracy within each style:", {k: round(v, 3) for k, v in content_per.items()})
     return 0 if style_acc >= STYLE_MIN and content_acc >= CONTENT_MIN else 1

@@ -20,16 +20,18 @@ from pathlib import Path
 
 import torch
 
-from augment.base_models import BaseModels
-from augment.diffusion import bind_model, ddim_sample
-from augment.evaluator_training import classifier_accuracy
-from augment.metrics import retrieval_r_at_k
-from augment.pretrain import joints_of, skeleton_for
-from augment.training_data import MotionSet, build_motion_set, iter_batches, read_clips, split_ids
+from motionaug.augment.diffusion import bind_model, ddim_sample
+from motionaug.augment.eval.metrics import retrieval_r_at_k
+from motionaug.augment.training.base_models import BaseModels
+from motionaug.augment.training.data import MotionSet, build_motion_set, iter_batches, read_clips, split_ids
+from motionaug.augment.training.evaluators import classifier_accuracy
+from motionaug.augment.training.pretrain import joints_of, skeleton_for
 
 
 @torch.no_grad()
-def generate(models: BaseModels, data: MotionSet, scale: float | None, steps: int, batch_size: int, seed: int) -> MotionSet:
+def generate(
+    models: BaseModels, data: MotionSet, scale: float | None, steps: int, batch_size: int, seed: int
+) -> MotionSet:
     """A MotionSet of generated (normalised) motions for each clip's first caption at its length."""
     generator = torch.Generator().manual_seed(seed)
     max_frames = models.info.max_frames
@@ -40,9 +42,16 @@ def generate(models: BaseModels, data: MotionSet, scale: float | None, steps: in
             sample = ddim_sample(model_fn, batch.motion.shape, steps=steps, guidance_scale=scale, generator=generator)
         out.extend(sample[i, : int(batch.mask[i].sum())].float() for i in range(sample.shape[0]))
     return MotionSet(
-        ids=data.ids, motions=out, captions=[[c[0]] for c in data.captions], texts=data.texts, text_embed=data.text_embed,
-        content=data.content, style=data.style, content_labels=data.content_labels, style_labels=data.style_labels,
-    )  # fmt: skip
+        ids=data.ids,
+        motions=out,
+        captions=[[c[0]] for c in data.captions],
+        texts=data.texts,
+        text_embed=data.text_embed,
+        content=data.content,
+        style=data.style,
+        content_labels=data.content_labels,
+        style_labels=data.style_labels,
+    )
 
 
 def one_row_per_caption(data: MotionSet) -> MotionSet:
@@ -50,10 +59,16 @@ def one_row_per_caption(data: MotionSet) -> MotionSet:
     rows = [(i, c) for i, caps in enumerate(data.captions) for c in caps]
     index = torch.tensor([i for i, _ in rows])
     return MotionSet(
-        ids=[f"{data.ids[i]}#{c}" for i, c in rows], motions=[data.motions[i] for i, _ in rows],
-        captions=[[c] for _, c in rows], texts=data.texts, text_embed=data.text_embed, content=data.content[index],
-        style=data.style[index], content_labels=data.content_labels, style_labels=data.style_labels,
-    )  # fmt: skip
+        ids=[f"{data.ids[i]}#{c}" for i, c in rows],
+        motions=[data.motions[i] for i, _ in rows],
+        captions=[[c] for _, c in rows],
+        texts=data.texts,
+        text_embed=data.text_embed,
+        content=data.content[index],
+        style=data.style[index],
+        content_labels=data.content_labels,
+        style_labels=data.style_labels,
+    )
 
 
 def accuracies(models: BaseModels, data: MotionSet) -> dict[str, float]:
@@ -61,7 +76,10 @@ def accuracies(models: BaseModels, data: MotionSet) -> dict[str, float]:
     skeleton = skeleton_for(models.normalizer.dim)
     joints, mask = joints_of(data, models.normalizer, skeleton, models.info.max_frames)
     out = {}
-    for name, model, labels in (("content", models.content_classifier, data.content), ("style", models.style_classifier, data.style)):
+    for name, model, labels in (
+        ("content", models.content_classifier, data.content),
+        ("style", models.style_classifier, data.style),
+    ):
         keep = labels >= 0
         if model is not None and bool(keep.any()):
             out[name] = classifier_accuracy(model, joints[keep], mask[keep], labels[keep])
@@ -89,22 +107,35 @@ def main() -> None:
     parser.add_argument("--limit", type=int, default=None, help="only the first N test clips")
     parser.add_argument("--batch", type=int, default=50)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--all-captions", action="store_true", help="generate every caption of each clip, not the first")
+    parser.add_argument(
+        "--all-captions", action="store_true", help="generate every caption of each clip, not the first"
+    )
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     models = BaseModels.load(args.base)
     ids = split_ids(args.corpus, "test")[: args.limit]
     data = build_motion_set(
-        read_clips(args.corpus, ids), models.normalizer, models.text_encoder, models.info.content_labels, models.info.style_labels
-    )  # fmt: skip
-    report: dict[str, object] = {"clips": len(data), "real": accuracies(models, data), "encoder_r1": encoder_r1(models, data)}
+        read_clips(args.corpus, ids),
+        models.normalizer,
+        models.text_encoder,
+        models.info.content_labels,
+        models.info.style_labels,
+    )
+    report: dict[str, object] = {
+        "clips": len(data),
+        "real": accuracies(models, data),
+        "encoder_r1": encoder_r1(models, data),
+    }
     if args.all_captions:
         data = one_row_per_caption(data)
         report["captions"] = len(data)
     for scale in (float(s) for s in args.scales.split(",")):
         start = time.perf_counter()
         generated = generate(models, data, scale or None, args.steps, args.batch, args.seed)
-        report[f"guidance_{scale:g}"] = {**accuracies(models, generated), "seconds": round(time.perf_counter() - start, 1)}
+        report[f"guidance_{scale:g}"] = {
+            **accuracies(models, generated),
+            "seconds": round(time.perf_counter() - start, 1),
+        }
     report["load"] = os.getloadavg()
     print(json.dumps(report, indent=2))
 

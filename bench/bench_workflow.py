@@ -28,11 +28,17 @@ from pathlib import Path
 from typing import Any
 
 STYLES = [
-    {"name": "proud", "words": {"adjective": "proud", "adverb": "proudly"},
-     "examples": [{"source": "000151", "description": "a person walks proudly"}]},
-    {"name": "old", "words": {"adjective": "old", "phrases": ["like an old person"]},
-     "examples": [{"source": "000084", "description": "an old person walks"}]},
-]  # fmt: skip
+    {
+        "name": "proud",
+        "words": {"adjective": "proud", "adverb": "proudly"},
+        "examples": [{"source": "000151", "description": "a person walks proudly"}],
+    },
+    {
+        "name": "old",
+        "words": {"adjective": "old", "phrases": ["like an old person"]},
+        "examples": [{"source": "000084", "description": "an old person walks"}],
+    },
+]
 
 
 def noop_round_trip(n: int = 50) -> float:
@@ -60,7 +66,7 @@ def warm_workers(workers: int) -> tuple[float, int]:
     """
     import ray
 
-    from workflows.ray_executor import warm_worker
+    from motionaug.workflows.ray_executor import warm_worker
 
     @ray.remote(num_cpus=1)
     def ready() -> int:
@@ -74,14 +80,16 @@ def warm_workers(workers: int) -> tuple[float, int]:
 
 
 def run_config(corpus: Path, out: Path, workers: int, args: argparse.Namespace) -> Any:
-    from schemas.run_config import load_run_config
+    from motionaug.schemas.run_config import load_run_config
 
     data: dict[str, Any] = {
-        "corpus": {"path": str(corpus), "filters": {"source_styles": ["neutral"]}}, "styles": STYLES,
+        "corpus": {"path": str(corpus), "filters": {"source_styles": ["neutral"]}},
+        "styles": STYLES,
         "method": {"name": args.method},
         "compute": {"num_cpus": workers, "unit_size": args.unit_size, "batch_size": args.batch_size},
-        "output": str(out), "seed": 0,
-    }  # fmt: skip
+        "output": str(out),
+        "seed": 0,
+    }
     if args.base_models:
         data["base_models"] = {"path": str(args.base_models), "pretrain_if_missing": False}
     return load_run_config(None, args.set or [], data=data)
@@ -91,10 +99,15 @@ def execute(config: Any, workers: int, force: bool = False, warm: bool = True) -
     """One run in a fresh embedded Ray of ``workers`` CPUs, workers started first; the summary and Ray timings."""
     import ray
 
-    from workflows.ray_executor import embedded_runtime_env, execute_run
+    from motionaug.workflows.ray_executor import embedded_runtime_env, execute_run
 
-    ray.init(address="local", num_cpus=workers, include_dashboard=False, log_to_driver=False,
-             runtime_env=embedded_runtime_env())  # fmt: skip
+    ray.init(
+        address="local",
+        num_cpus=workers,
+        include_dashboard=False,
+        log_to_driver=False,
+        runtime_env=embedded_runtime_env(),
+    )
     try:
         warm_s, started = warm_workers(workers) if warm else (0.0, 0)
         timings = {"worker_start_s": warm_s, "workers_started": started, "noop_round_trip_s": noop_round_trip()}
@@ -105,12 +118,12 @@ def execute(config: Any, workers: int, force: bool = False, warm: bool = True) -
 
 def drop_shards(run_dir: Path) -> None:
     """Remove the transfer stage's outputs so that resuming runs exactly that stage again."""
-    from schemas.shards import RunLayout
+    from motionaug.augment.outputs.run_dir import RunDir
 
-    layout = RunLayout(run_dir)
-    for path in (layout.shards_dir, layout.rejects_dir):
+    run = RunDir(run_dir)
+    for path in (run.shards_dir, run.rejects_dir):
         shutil.rmtree(path, ignore_errors=True)
-    for path in (layout.manifest, layout.success):
+    for path in (run.manifest_path, run.success_path):
         path.unlink(missing_ok=True)
 
 
@@ -123,16 +136,20 @@ def measure(config: Any, workers: int, warm: bool) -> dict[str, Any]:
     in_task = sum(s.seconds for s in manifest.shards)
     busy_wall = transfer.seconds * min(workers, len(manifest.shards))
     return {
-        "workers": workers, "rows": manifest.rows, "tasks": len(manifest.shards),
-        "finetune_tasks_run": manifest.stages["finetune"].tasks - manifest.stages["finetune"].skipped,
-        "transfer_stage_s": round(transfer.seconds, 2), "clips_per_s": round(manifest.rows / transfer.seconds, 2),
+        "workers": workers,
+        "rows": manifest.rows,
+        "tasks": len(manifest.shards),
+        "finetune_tasks_run": manifest.stages["prepare"].tasks - manifest.stages["prepare"].skipped,
+        "transfer_stage_s": round(transfer.seconds, 2),
+        "clips_per_s": round(manifest.rows / transfer.seconds, 2),
         "mean_task_s": round(in_task / max(len(manifest.shards), 1), 2),
         "ray_overhead_fraction": round(max(busy_wall - in_task, 0.0) / max(in_task, 1e-9), 4),
         "noop_task_round_trip_ms": round(ray_timings["noop_round_trip_s"] * 1000, 2),
-        "worker_start_s": round(ray_timings["worker_start_s"], 2), "workers_started": ray_timings["workers_started"],
+        "worker_start_s": round(ray_timings["worker_start_s"], 2),
+        "workers_started": ray_timings["workers_started"],
         "load_fraction_of_unit": round(sum(s.load_seconds for s in manifest.shards) / max(in_task, 1e-9), 4),
         "peak_rss_mb_per_worker": round(max(s.peak_rss_mb for s in manifest.shards), 1),
-    }  # fmt: skip
+    }
 
 
 def main() -> None:
@@ -150,7 +167,7 @@ def main() -> None:
     parser.add_argument("--cold", action="store_true", help="do not start the workers before timing the transfers")
     args = parser.parse_args()
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-    from augment.synth import generate_corpus
+    from motionaug.augment.synth import generate_corpus
 
     with tempfile.TemporaryDirectory(prefix="bench-workflow-") as tmp:
         workdir = args.work or Path(tmp)
@@ -163,12 +180,18 @@ def main() -> None:
         start = time.perf_counter()
         first, _ = execute(config, max(args.workers), force=True)
         results: dict[str, Any] = {
-            "method": args.method, "clips": first.manifest.rows // len(STYLES), "unit_size": args.unit_size,
-            "batch_size": args.batch_size, "styles": len(STYLES), "cpu_count": os.cpu_count(),
-            "corpus_s": round(corpus_s, 2), "full_run_s": round(time.perf_counter() - start, 1),
-            "finetune_stage_s": round(first.manifest.stages["finetune"].seconds, 1),
-            "runs": [measure(config, w, warm=not args.cold) for w in args.workers], "load": os.getloadavg(),
-        }  # fmt: skip
+            "method": args.method,
+            "clips": first.manifest.rows // len(STYLES),
+            "unit_size": args.unit_size,
+            "batch_size": args.batch_size,
+            "styles": len(STYLES),
+            "cpu_count": os.cpu_count(),
+            "corpus_s": round(corpus_s, 2),
+            "full_run_s": round(time.perf_counter() - start, 1),
+            "finetune_stage_s": round(first.manifest.stages["prepare"].seconds, 1),
+            "runs": [measure(config, w, warm=not args.cold) for w in args.workers],
+            "load": os.getloadavg(),
+        }
     runs = results["runs"]
     if len(runs) > 1:
         results["speedup"] = round(runs[-1]["clips_per_s"] / runs[0]["clips_per_s"], 2)

@@ -25,7 +25,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 from torch.nn.utils import parametrize
 
-from schemas.errors import MotionDataError
+from motionaug.schemas.errors import MotionDataError
 
 LORA_PREFIX = "lora_"  # every adapter tensor's own name starts with this
 DEFAULT_TARGETS = ("self_attn", "linear1", "linear2")
@@ -55,9 +55,13 @@ class LoRALinear(nn.Module):
     """
 
     def __init__(
-        self, base: nn.Linear, rank: int = 8, alpha: float = 16.0, dropout: float = 0.0,
+        self,
+        base: nn.Linear,
+        rank: int = 8,
+        alpha: float = 16.0,
+        dropout: float = 0.0,
         generator: torch.Generator | None = None,
-    ) -> None:  # fmt: skip
+    ) -> None:
         super().__init__()
         _check_hyper(rank, alpha, dropout, base.in_features, base.out_features, "LoRALinear")
         base.requires_grad_(False)
@@ -225,7 +229,7 @@ def _check_same_tensors(what: str, own: Mapping[str, Tensor], state: Mapping[str
 
 def merge_lora(model: nn.Module) -> nn.Module:
     """Fold every adapter into its base weight in place, restoring plain modules; returns ``model``."""
-    for name, module in list(model.named_modules()):
+    for _name, module in list(model.named_modules()):
         if parametrize.is_parametrized(module, _IN_PROJ):
             parametrize.remove_parametrizations(module, _IN_PROJ, leave_parametrized=True)
             module.in_proj_weight.requires_grad_(False)
@@ -249,11 +253,10 @@ def base_state_dict(model: nn.Module) -> dict[str, Tensor]:
 
 
 def adapted_biases(model: nn.Module, extra: Iterable[str] = ()) -> dict[str, nn.Parameter]:
-    """Biases of the adapted layers and of the Linear modules named in ``extra``, by state-dict key (BitFit beside LoRA).
+    """Biases of the adapted layers and of the Linear modules named in ``extra``, by state-dict key (BitFit).
 
     A low-rank delta acts on per-frame activations, so a shift held over a whole clip (a chest kept up) costs it
-    rank; a bias carries such a shift for a few hundred numbers a layer (on the proud protocol it did not move
-    SRA: bench/RESULTS.md, session 7).
+    rank; a bias carries such a shift for a few hundred numbers a layer.
     """
     found: dict[str, nn.Parameter] = {}
     for name, module in model.named_modules():

@@ -15,8 +15,8 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from models.attention import run_encoder
-from schemas.errors import MotionDataError
+from motionaug.models.attention import run_encoder
+from motionaug.schemas.errors import MotionDataError
 
 
 @dataclass(frozen=True)
@@ -173,7 +173,9 @@ class MDM(nn.Module):
         if cond is None:
             return torch.zeros(batch, self.config.text_dim, dtype=like.dtype, device=like.device)
         if cond.shape != (batch, self.config.text_dim):
-            raise MotionDataError("MDM.forward", f"text embedding {tuple(cond.shape)} != ({batch}, {self.config.text_dim})")
+            raise MotionDataError(
+                "MDM.forward", f"text embedding {tuple(cond.shape)} != ({batch}, {self.config.text_dim})"
+            )
         return cond.to(like.dtype)
 
     def _check(self, x_t: Tensor, t: Tensor, mask: Tensor | None) -> None:

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from schemas.errors import MotionDataError
-from models.mdm import MDM
+from motionaug.models.mdm import MDM
+from motionaug.schemas.errors import MotionDataError
 
 SKIPPED_PREFIXES = ("clip_model.",)
 PE_KEYS = ("sequence_pos_encoder.pe", "embed_timestep.sequence_pos_encoder.pe")

@@ -21,7 +21,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from models.attention import run_encoder
+from motionaug.models.attention import run_encoder
 
 EmbedLayout = Literal["btd", "tbd"]
 
@@ -38,7 +38,7 @@ class MotionEncoderConfig:
     max_len: int = 1024  # frames (+1 token) the positional table covers
 
     @classmethod
-    def named(cls, size: str, **overrides: object) -> "MotionEncoderConfig":
+    def named(cls, size: str, **overrides: object) -> MotionEncoderConfig:
         """``tiny`` for tests, ``small`` for CPU experiments, ``paper`` sized like MDM's transformer."""
         try:
             base = NAMED_SIZES[size]

@@ -21,7 +21,7 @@ from typing import Any, Literal, Protocol, runtime_checkable
 import torch
 import torch.nn.functional as F
 
-from models.minilm import SentenceEncoder
+from motionaug.models.minilm import SentenceEncoder
 
 DEFAULT_CACHE_SIZE = 50_000
 CLIP_DIM = 512

@@ -17,7 +17,7 @@ from typing import Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from schemas.styles import StyleSpec
+from motionaug.schemas.styles import StyleSpec
 
 RUN_CONFIG_VERSION = 1
 RESOLVED_CONFIG_FILE = "config.resolved.json"
@@ -32,7 +32,8 @@ class CorpusFilters(_Strict):
 
     contents: list[str] | None = Field(default=None, description="Keep clips whose content label is listed.")
     source_styles: list[str] | None = Field(
-        default=None, description="Keep clips whose style label is listed (e.g. [neutral] to stylize only neutral clips)."
+        default=None,
+        description="Keep clips whose style label is listed (e.g. [neutral] to stylize only neutral clips).",
     )
     caption_regex: str | None = Field(default=None, description="Keep clips with a caption matching this regex.")
     min_frames: int | None = Field(default=None, ge=1)
@@ -49,7 +50,7 @@ class CorpusFilters(_Strict):
         return value
 
     @model_validator(mode="after")
-    def _ordered(self) -> "CorpusFilters":
+    def _ordered(self) -> CorpusFilters:
         if self.min_frames and self.max_frames and self.min_frames > self.max_frames:
             raise ValueError(f"min_frames {self.min_frames} > max_frames {self.max_frames}")
         return self
@@ -129,7 +130,7 @@ class RunConfig(_Strict):
         return styles
 
     @model_validator(mode="after")
-    def _fan_out_fits(self) -> "RunConfig":
+    def _fan_out_fits(self) -> RunConfig:
         k = self.fan_out.per_clip
         if k != "all" and k > len(self.styles):
             raise ValueError(f"fan_out.per_clip {k} > number of styles {len(self.styles)}")

@@ -4,7 +4,7 @@ Shards are plain Arrow columns (no extension types) so pyarrow, pandas and duckd
 or the whole ``shards/`` folder (``pd.read_parquet(run / "shards")``; ``style`` is dictionary-encoded so the
 ``style=<name>`` folders, which pyarrow reads as a hive partition, merge with the column).
 ``motion`` is flattened row-major: ``np.asarray(row.motion).reshape(row.n_frames, row.n_feats)``.
-Run folder layout (``RunLayout`` gives the paths)::
+Run folder layout (``motionaug.augment.outputs.run_dir.RunDir`` reads and writes it)::
 
     config.resolved.json  plan.json  manifest.json  _SUCCESS
     styles/<style>/...  styles/<style>.done            (fine-tuned artefact + its marker)
@@ -14,17 +14,17 @@ Run folder layout (``RunLayout`` gives the paths)::
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pyarrow as pa
 from pydantic import BaseModel, ConfigDict, Field
 
-from schemas.corpus import CAPTION_TYPE
+from motionaug.schemas.corpus import CAPTION_TYPE
 
 SHARD_SCHEMA_VERSION = 1
 META_SHARD_VERSION = b"motionaug.shard_schema_version"
 
-ARTIFACT_REF_TYPE = pa.struct([pa.field("path", pa.string(), nullable=False), pa.field("sha256", pa.string(), nullable=False)])
+ARTIFACT_REF_TYPE = pa.struct(
+    [pa.field("path", pa.string(), nullable=False), pa.field("sha256", pa.string(), nullable=False)]
+)
 
 SHARD_FIELDS = [
     pa.field("run_id", pa.string(), nullable=False),
@@ -75,6 +75,8 @@ class Plan(_Record):
     units: list[PlanUnit]
     splits: dict[str, str] = Field(default_factory=dict, description="Source id -> split, where known.")
     rejects: int = 0
+    pool: list[str] = Field(default_factory=list, description="Content clip ids a method's prepare learns from.")
+    pool_files: list[str] = Field(default_factory=list, description="Source files of the pool's clips.")
 
 
 class ArtifactMarker(_Record):
@@ -126,33 +128,3 @@ class Manifest(_Record):
     stages: dict[str, StageTiming]
     scores: dict[str, float] = Field(default_factory=dict, description="Mean of each score over all rows.")
     base_models: str | None = None
-
-
-class RunLayout:
-    """Paths inside one run folder."""
-
-    def __init__(self, root: Path) -> None:
-        self.root = Path(root)
-
-    config = property(lambda self: self.root / "config.resolved.json")
-    plan = property(lambda self: self.root / "plan.json")
-    manifest = property(lambda self: self.root / "manifest.json")
-    success = property(lambda self: self.root / "_SUCCESS")
-    styles_dir = property(lambda self: self.root / "styles")
-    shards_dir = property(lambda self: self.root / "shards")
-    rejects_dir = property(lambda self: self.root / "rejects")
-
-    def artifact_dir(self, style: str) -> Path:
-        return self.styles_dir / style
-
-    def artifact_marker(self, style: str) -> Path:
-        return self.styles_dir / f"{style}.done"
-
-    def shard(self, style: str, unit: int) -> Path:
-        return self.shards_dir / f"style={style}" / f"unit-{unit:05d}.parquet"
-
-    def shard_marker(self, style: str, unit: int) -> Path:
-        return self.shards_dir / f"style={style}" / f"_unit-{unit:05d}.done"
-
-    def rejects(self, style: str, unit: int) -> Path:
-        return self.rejects_dir / f"style={style}" / f"unit-{unit:05d}.jsonl"

@@ -39,7 +39,7 @@ class Skeleton(BaseModel):
     )
 
     @model_validator(mode="after")
-    def _check(self) -> "Skeleton":
+    def _check(self) -> Skeleton:
         n = len(self.joint_names)
         if len(self.raw_offsets) != n:
             raise ValueError(f"skeleton {self.name}: {len(self.raw_offsets)} offsets for {n} joints")
@@ -80,20 +80,63 @@ class Skeleton(BaseModel):
 
 
 T2M_JOINT_NAMES = [
-    "pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2",
-    "left_ankle", "right_ankle", "spine3", "left_foot", "right_foot", "neck", "left_collar",
-    "right_collar", "head", "left_shoulder", "right_shoulder", "left_elbow", "right_elbow",
-    "left_wrist", "right_wrist",
-]  # fmt: skip
+    "pelvis",
+    "left_hip",
+    "right_hip",
+    "spine1",
+    "left_knee",
+    "right_knee",
+    "spine2",
+    "left_ankle",
+    "right_ankle",
+    "spine3",
+    "left_foot",
+    "right_foot",
+    "neck",
+    "left_collar",
+    "right_collar",
+    "head",
+    "left_shoulder",
+    "right_shoulder",
+    "left_elbow",
+    "right_elbow",
+    "left_wrist",
+    "right_wrist",
+]
 
 T2M = Skeleton(
     name="t2m",
     joint_names=T2M_JOINT_NAMES,
-    kinematic_chain=[[0, 2, 5, 8, 11], [0, 1, 4, 7, 10], [0, 3, 6, 9, 12, 15], [9, 14, 17, 19, 21], [9, 13, 16, 18, 20]],
+    kinematic_chain=[
+        [0, 2, 5, 8, 11],
+        [0, 1, 4, 7, 10],
+        [0, 3, 6, 9, 12, 15],
+        [9, 14, 17, 19, 21],
+        [9, 13, 16, 18, 20],
+    ],
     raw_offsets=[
-        (0, 0, 0), (1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, -1, 0), (0, 1, 0), (0, -1, 0),
-        (0, -1, 0), (0, 1, 0), (0, 0, 1), (0, 0, 1), (0, 1, 0), (1, 0, 0), (-1, 0, 0), (0, 0, 1),
-        (0, -1, 0), (0, -1, 0), (0, -1, 0), (0, -1, 0), (0, -1, 0), (0, -1, 0),
+        (0, 0, 0),
+        (1, 0, 0),
+        (-1, 0, 0),
+        (0, 1, 0),
+        (0, -1, 0),
+        (0, -1, 0),
+        (0, 1, 0),
+        (0, -1, 0),
+        (0, -1, 0),
+        (0, 1, 0),
+        (0, 0, 1),
+        (0, 0, 1),
+        (0, 1, 0),
+        (1, 0, 0),
+        (-1, 0, 0),
+        (0, 0, 1),
+        (0, -1, 0),
+        (0, -1, 0),
+        (0, -1, 0),
+        (0, -1, 0),
+        (0, -1, 0),
+        (0, -1, 0),
     ],
     fps=20.0,
     feet_left=(7, 10),
@@ -101,22 +144,58 @@ T2M = Skeleton(
     face_joints=(2, 1, 17, 16),
     leg_joints=(5, 8),
     mirror_pairs=[(1, 2), (4, 5), (7, 8), (10, 11), (13, 14), (16, 17), (18, 19), (20, 21)],
-)  # fmt: skip
+)
 
 KIT_JOINT_NAMES = [
-    "root", "torso", "chest", "neck", "head", "r_shoulder", "r_elbow", "r_wrist", "l_shoulder",
-    "l_elbow", "l_wrist", "r_hip", "r_knee", "r_ankle", "r_heel", "r_toe", "l_hip", "l_knee",
-    "l_ankle", "l_heel", "l_toe",
-]  # fmt: skip
+    "root",
+    "torso",
+    "chest",
+    "neck",
+    "head",
+    "r_shoulder",
+    "r_elbow",
+    "r_wrist",
+    "l_shoulder",
+    "l_elbow",
+    "l_wrist",
+    "r_hip",
+    "r_knee",
+    "r_ankle",
+    "r_heel",
+    "r_toe",
+    "l_hip",
+    "l_knee",
+    "l_ankle",
+    "l_heel",
+    "l_toe",
+]
 
 KIT = Skeleton(
     name="kit",
     joint_names=KIT_JOINT_NAMES,
     kinematic_chain=[[0, 11, 12, 13, 14, 15], [0, 16, 17, 18, 19, 20], [0, 1, 2, 3, 4], [3, 5, 6, 7], [3, 8, 9, 10]],
     raw_offsets=[
-        (0, 0, 0), (0, 1, 0), (0, 1, 0), (0, 1, 0), (0, 1, 0), (1, 0, 0), (0, -1, 0), (0, -1, 0),
-        (-1, 0, 0), (0, -1, 0), (0, -1, 0), (1, 0, 0), (0, -1, 0), (0, -1, 0), (0, 0, 1), (0, 0, 1),
-        (-1, 0, 0), (0, -1, 0), (0, -1, 0), (0, 0, 1), (0, 0, 1),
+        (0, 0, 0),
+        (0, 1, 0),
+        (0, 1, 0),
+        (0, 1, 0),
+        (0, 1, 0),
+        (1, 0, 0),
+        (0, -1, 0),
+        (0, -1, 0),
+        (-1, 0, 0),
+        (0, -1, 0),
+        (0, -1, 0),
+        (1, 0, 0),
+        (0, -1, 0),
+        (0, -1, 0),
+        (0, 0, 1),
+        (0, 0, 1),
+        (-1, 0, 0),
+        (0, -1, 0),
+        (0, -1, 0),
+        (0, 0, 1),
+        (0, 0, 1),
     ],
     fps=12.5,
     feet_left=(19, 20),
@@ -124,7 +203,7 @@ KIT = Skeleton(
     face_joints=(11, 16, 5, 8),
     leg_joints=(17, 18),
     mirror_pairs=[(5, 8), (6, 9), (7, 10), (11, 16), (12, 17), (13, 18), (14, 19), (15, 20)],
-)  # fmt: skip
+)
 
 BUILTIN_SKELETONS: dict[str, Skeleton] = {"t2m": T2M, "kit": KIT}
 

@@ -30,8 +30,14 @@ def shared_data() -> Path:
 
 # Two styles with one example each, for workflow tests on a small synthetic corpus (ids of its first clips).
 TWO_STYLES = [
-    {"name": "proud", "words": {"adjective": "proud", "adverb": "proudly", "phrases": ["in a proud way"]},
-     "examples": [{"source": "000004", "description": "a person walks proudly"}]},
-    {"name": "old", "words": {"adjective": "old", "phrases": ["like an old person"]},
-     "examples": [{"source": "000008", "description": "a person walks like an old person"}]},
-]  # fmt: skip
+    {
+        "name": "proud",
+        "words": {"adjective": "proud", "adverb": "proudly", "phrases": ["in a proud way"]},
+        "examples": [{"source": "000004", "description": "a person walks proudly"}],
+    },
+    {
+        "name": "old",
+        "words": {"adjective": "old", "phrases": ["like an old person"]},
+        "examples": [{"source": "000008", "description": "a person walks like an old person"}],
+    },
+]

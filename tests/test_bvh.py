@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import json
-import os
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import require_shared
 
-from augment.bvh import (
+from motionaug.augment.motion.bvh import (
     BvhMotion,
     euler_to_matrix,
     forward_kinematics,
@@ -21,8 +21,7 @@ from augment.bvh import (
     read_bvh,
     write_bvh,
 )
-from schemas.errors import MotionDataError
-from augment.retarget import (
+from motionaug.augment.motion.retarget import (
     BANDAI_TO_T2M,
     JointMap,
     labels_from_bandai,
@@ -31,16 +30,14 @@ from augment.retarget import (
     resample,
     retarget_positions,
 )
-from schemas.skeleton import T2M
-from conftest import require_shared
+from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.skeleton import T2M
 
 FIXTURES = Path(__file__).resolve().parent / "fixtures" / "bvh"
 WALK = FIXTURES / "dataset-1" / "data" / "dataset-1_walk_normal_002.bvh"
 DASH = FIXTURES / "dataset-1" / "data" / "dataset-1_dash_normal_001.bvh"
 RAISE = FIXTURES / "dataset-2" / "data" / "dataset-2_raise-up-left-hand_active_003.bvh"
 J = {name: i for i, name in enumerate(T2M.joint_names)}
-
-
 
 
 def _fixture_lines(path: Path) -> list[str]:
@@ -227,9 +224,16 @@ def test_wrong_channel_count_and_broken_hierarchy(tmp_path: Path) -> None:
 def test_write_read_round_trip(tmp_path: Path) -> None:
     motion = read_bvh(RAISE)
     path = write_bvh(
-        tmp_path / "out" / "rt.bvh", motion.names, motion.parents, motion.offsets, motion.local_quaternions(),
-        motion.local_translations()[:, 0], fps=30.0, order="YXZ", translations=motion.local_translations(),
-    )  # fmt: skip
+        tmp_path / "out" / "rt.bvh",
+        motion.names,
+        motion.parents,
+        motion.offsets,
+        motion.local_quaternions(),
+        motion.local_translations()[:, 0],
+        fps=30.0,
+        order="YXZ",
+        translations=motion.local_translations(),
+    )
     back = read_bvh(path)
     assert back.names == motion.names and back.n_frames == motion.n_frames
     assert back.channels[1] == ("Xposition", "Yposition", "Zposition", "Yrotation", "Xrotation", "Zrotation")
@@ -291,7 +295,7 @@ def test_joints_to_bvh_is_exact_for_a_rigid_clip(tmp_path: Path) -> None:
 
 
 def test_joints_to_bvh_on_humanml3d_clip(tmp_path: Path) -> None:
-    joints = np.load(require_shared("humanml3d_sample", "new_joints", "012314.npy"))
+    joints = np.load(FIXTURES.parent / "humanml3d" / "new_joints" / "012314.npy")
     err = joints_to_bvh(tmp_path / "hml.bvh", joints)
     back = read_bvh(tmp_path / "hml.bvh")
     got = back.global_positions()[:, [back.names.index(n) for n in T2M.joint_names]]
@@ -427,4 +431,4 @@ def test_every_shared_bandai_file_parses() -> None:
         frames += motion.n_frames
     elapsed = time.perf_counter() - start
     print(f"parsed {len(files) - len(empty)} Bandai BVH files, {frames} frames, in {elapsed:.2f} s")
-    assert len(files) - len(empty) == 454
+    assert len(files) - len(empty) == 174 + 1328  # dataset-1 (one file empty upstream) + dataset-2 ids 001-019

@@ -6,7 +6,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from augment.caption_revision import (
+from motionaug.augment.synth.styles import STYLE_WORDS
+from motionaug.augment.text.caption_revision import (
     caption_words,
     has_style_words,
     neutral_description,
@@ -17,20 +18,21 @@ from augment.caption_revision import (
     style_word_in,
     variant_kinds,
 )
-from augment.corpus.tokens import parse_caption_line, parse_token
-from schemas.errors import MotionDataError
-from augment.synth.styles import STYLE_WORDS
-from schemas.captions import Caption
-from schemas.styles import StyleWords
+from motionaug.augment.text.tokens import parse_caption_line, parse_token
+from motionaug.schemas.captions import Caption
+from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.styles import StyleWords
 
 LINES = [
-    "a man kicks something with his left leg.#a/DET man/NOUN kick/VERB something/PRON with/ADP his/DET left/ADJ leg/NOUN#0.0#0.0",
-    "a person walks forward and then turns around.#a/DET person/NOUN walk/VERB forward/ADV and/CCONJ then/ADV turn/VERB around/ADV#0.0#0.0",
+    "a man kicks something with his left leg.#a/DET man/NOUN kick/VERB something/PRON with/ADP his/DET left/ADJ leg/NOUN#0.0#0.0",  # noqa: E501 (a real caption line)
+    "a person walks forward and then turns around.#a/DET person/NOUN walk/VERB forward/ADV and/CCONJ then/ADV turn/VERB around/ADV#0.0#0.0",  # noqa: E501 (a real caption line)
     "the person is jumping up and down#the/DET person/NOUN is/AUX jump/VERB up/ADP and/CCONJ down/ADP#0.0#0.0",
     "someone sadly walks in a circle.#someone/PRON sadly/ADV walk/VERB in/ADP a/DET circle/NOUN#0.0#0.0",
-]  # fmt: skip
+]
 CAPTIONS = [parse_caption_line(line, f"texts/line{i}") for i, line in enumerate(LINES)]
-STYLES = {name: StyleWords(adjective=w.adjective, adverb=w.adverb, phrases=w.phrases) for name, w in STYLE_WORDS.items()}
+STYLES = {
+    name: StyleWords(adjective=w.adjective, adverb=w.adverb, phrases=w.phrases) for name, w in STYLE_WORDS.items()
+}
 PROUD, OLD, ANGRY = STYLES["proud"], STYLES["old"], STYLES["angry"]
 LEMMA_POS = {"NOUN", "VERB"}  # HumanML3D lemmatises only these; other tokens carry the word itself
 
@@ -58,7 +60,12 @@ def all_variants(style: StyleWords) -> list[str | int]:
         (0, "adverb", "a man proudly kicks something with his left leg.", ["proudly/ADV", "kick/VERB"]),
         (2, "adverb", "the person is jumping proudly up and down", ["jump/VERB", "proudly/ADV"]),
         (0, "adjective", "a proud man kicks something with his left leg.", ["a/DET", "proud/ADJ", "man/NOUN"]),
-        (1, "phrase", "a person walks forward and then turns around in a proud way.", ["in/ADP", "a/DET", "proud/ADJ", "way/NOUN"]),
+        (
+            1,
+            "phrase",
+            "a person walks forward and then turns around in a proud way.",
+            ["in/ADP", "a/DET", "proud/ADJ", "way/NOUN"],
+        ),
         (3, "adverb", "someone walks proudly in a circle.", ["walk/VERB", "proudly/ADV"]),
         (3, "phrase:1", "someone walks in a circle with pride.", ["with/ADP", "pride/NOUN"]),
     ],
@@ -158,7 +165,10 @@ def test_revised_captions_deterministic_and_distinct() -> None:
     first = revised_captions(CAPTIONS[:3], PROUD, n_variants=3, seed=4)
     assert first == revised_captions(CAPTIONS[:3], PROUD, n_variants=3, seed=4)
     assert len(first) == 3 and len({c.text for c in first}) == 3
-    kinds = {("adj" if "proud " in c.text and "proud way" not in c.text else "adv" if "proudly" in c.text else "phrase") for c in first}
+    kinds = {
+        ("adj" if "proud " in c.text and "proud way" not in c.text else "adv" if "proudly" in c.text else "phrase")
+        for c in first
+    }
     assert kinds == {"adj", "adv", "phrase"}  # the three phrasings cycle over the clip's captions
     more = revised_captions(CAPTIONS[:2], OLD, n_variants=6, seed=0)
     assert len(more) == 6 and len({c.text for c in more}) == 6
@@ -185,12 +195,29 @@ def test_descriptions() -> None:
 
 
 WORD_POOL = [
-    ("a", "a/DET"), ("the", "the/DET"), ("person", "person/NOUN"), ("man", "man/NOUN"), ("figure", "figure/NOUN"),
-    ("walks", "walk/VERB"), ("runs", "run/VERB"), ("turning", "turn/VERB"), ("kicks", "kick/VERB"),
-    ("is", "is/AUX"), ("forward", "forward/ADV"), ("then", "then/ADV"), ("and", "and/CCONJ"), ("in", "in/ADP"),
-    ("circle", "circle/NOUN"), ("left", "left/ADJ"), ("hands", "hand/NOUN"), ("someone", "someone/PRON"),
-    ("sadly", "sadly/ADV"), ("proudly", "proudly/ADV"), ("twice", "twice/ADV"), ("up", "up/ADP"),
-]  # fmt: skip
+    ("a", "a/DET"),
+    ("the", "the/DET"),
+    ("person", "person/NOUN"),
+    ("man", "man/NOUN"),
+    ("figure", "figure/NOUN"),
+    ("walks", "walk/VERB"),
+    ("runs", "run/VERB"),
+    ("turning", "turn/VERB"),
+    ("kicks", "kick/VERB"),
+    ("is", "is/AUX"),
+    ("forward", "forward/ADV"),
+    ("then", "then/ADV"),
+    ("and", "and/CCONJ"),
+    ("in", "in/ADP"),
+    ("circle", "circle/NOUN"),
+    ("left", "left/ADJ"),
+    ("hands", "hand/NOUN"),
+    ("someone", "someone/PRON"),
+    ("sadly", "sadly/ADV"),
+    ("proudly", "proudly/ADV"),
+    ("twice", "twice/ADV"),
+    ("up", "up/ADP"),
+]
 GLUE = st.sampled_from([" ", " ", " ", ", ", " , ", ". "])
 
 
@@ -222,3 +249,16 @@ def test_revision_keeps_tokens_aligned_property(
         for form in (other.adverb, *other.phrases):
             if form and form not in (style.adverb, *style.phrases):
                 assert f" {form} " not in f" {revised.text.rstrip('.')} ", (form, revised.text)
+
+
+def test_label_captions_revised_into_every_bandai_style_are_fully_tagged() -> None:
+    """No word of a revised Bandai caption is left untagged (X): style phrases get their real parts of speech."""
+    from motionaug.augment.text.label_captions import CONTENT_PHRASES, label_captions, label_style_words
+
+    untagged = {}
+    for words in label_style_words().values():
+        for content in CONTENT_PHRASES:
+            for seed in range(4):
+                for revised in revised_captions(label_captions(content, "normal", n=3, seed="x"), words, 3, seed):
+                    untagged.update({t: revised.text for t in revised.tokens if t.endswith("/X")})
+    assert not untagged

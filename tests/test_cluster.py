@@ -22,11 +22,13 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 import yaml
+from conftest import TWO_STYLES
 from typer.testing import CliRunner
 
-from schemas.run_config import load_run_config
-from workflows.cli import app
-from conftest import TWO_STYLES
+from motionaug.schemas.run_config import load_run_config
+from motionaug.workflows.cli import app
+
+pytestmark = pytest.mark.slow
 
 REPO = Path(__file__).resolve().parents[1]
 DEPLOY = REPO / "deploy"
@@ -39,9 +41,13 @@ TOTAL_SHARDS = N_CLIPS // UNIT_SIZE * len(STYLES)
 
 def config_file(tmp: Path, corpus: Path, out: Path, seed: int) -> Path:
     data = {
-        "corpus": {"path": str(corpus)}, "styles": copy.deepcopy(STYLES), "method": {"name": "stats"},
-        "compute": {"batch_size": 2, "unit_size": UNIT_SIZE, "max_retries": 3}, "output": str(out), "seed": seed,
-    }  # fmt: skip
+        "corpus": {"path": str(corpus)},
+        "styles": copy.deepcopy(STYLES),
+        "method": {"name": "stats"},
+        "compute": {"batch_size": 2, "unit_size": UNIT_SIZE, "max_retries": 3},
+        "output": str(out),
+        "seed": seed,
+    }
     path = tmp / f"run-{seed}.yaml"
     path.write_text(yaml.safe_dump(data), encoding="utf-8")
     return path
@@ -59,10 +65,15 @@ def cluster_env(state: Path) -> dict[str, str]:
     while any(_taken(agent + i) for i in range(4)):
         agent = free_port()
     return {
-        **os.environ, "PATH": f"{Path(sys.executable).parent}:{os.environ.get('PATH', '')}", "CLUSTER_DIR": str(state),
-        "GCS_PORT": str(free_port()), "DASHBOARD_PORT": str(free_port()), "AGENT_PORT": str(agent),
-        "CPUS_PER_NODE": "1", "RAY_USAGE_STATS_ENABLED": "0",
-    }  # fmt: skip
+        **os.environ,
+        "PATH": f"{Path(sys.executable).parent}:{os.environ.get('PATH', '')}",
+        "CLUSTER_DIR": str(state),
+        "GCS_PORT": str(free_port()),
+        "DASHBOARD_PORT": str(free_port()),
+        "AGENT_PORT": str(agent),
+        "CPUS_PER_NODE": "1",
+        "RAY_USAGE_STATS_ENABLED": "0",
+    }
 
 
 def _taken(port: int) -> bool:
@@ -95,7 +106,7 @@ def cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
 
 @pytest.fixture(scope="module")
 def corpus(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from augment.synth import generate_corpus
+    from motionaug.augment.synth import generate_corpus
 
     root = tmp_path_factory.mktemp("corpus") / "synth"
     generate_corpus(root, N_CLIPS, seed=0)
@@ -110,7 +121,7 @@ def output_ids(run_dir: Path) -> list[str]:
 def state_client(url: str):
     from ray.util.state.api import StateApiClient
 
-    from workflows.jobs import auth_headers
+    from motionaug.workflows.jobs import auth_headers
 
     return StateApiClient(address=url, headers={"Content-Type": "application/json", **auth_headers()})
 
@@ -131,7 +142,7 @@ def transfer_tasks(url: str, running_only: bool = False) -> list[dict]:
 
 @pytest.mark.filterwarnings("ignore:ssl=None is deprecated:DeprecationWarning")  # inside Ray's log tail
 def test_submit_runs_on_two_nodes_and_a_second_submit_is_refused(cluster: str, corpus: Path, tmp_path: Path) -> None:
-    from workflows.jobs import wait_for_job
+    from motionaug.workflows.jobs import wait_for_job
 
     out = tmp_path / "run"
     cfg = config_file(tmp_path, corpus, out, seed=0)
@@ -179,7 +190,7 @@ def test_a_job_uses_both_nodes(cluster: str, tmp_path: Path) -> None:
     """Two concurrent 1-CPU tasks on two 1-CPU nodes must land on different nodes."""
     from ray.util.state.common import ListApiOptions, StateResource
 
-    from workflows.jobs import connect, wait_for_job
+    from motionaug.workflows.jobs import connect, wait_for_job
 
     options = ListApiOptions(filters=[("state", "=", "ALIVE")])
     assert len(state_client(cluster).list(StateResource.NODES, options, raise_on_missing_output=False)) == 2
@@ -202,7 +213,7 @@ def process_title(pid: int) -> str:
 
 
 def test_worker_sigkill_mid_run_loses_and_duplicates_nothing(cluster: str, corpus: Path, tmp_path: Path) -> None:
-    from workflows.jobs import job_state, submit_run, wait_for_job
+    from motionaug.workflows.jobs import job_state, submit_run, wait_for_job
 
     out = tmp_path / "run"
     job = submit_run(load_run_config(config_file(tmp_path, corpus, out, seed=1)), cluster)
@@ -232,7 +243,7 @@ def test_worker_sigkill_mid_run_loses_and_duplicates_nothing(cluster: str, corpu
 
 
 def test_cancel_stops_a_run_and_retry_resumes_it(cluster: str, corpus: Path, tmp_path: Path) -> None:
-    from workflows.jobs import connect, wait_for_job
+    from motionaug.workflows.jobs import connect, wait_for_job
 
     out = tmp_path / "run"
     cfg = config_file(tmp_path, corpus, out, seed=2)
@@ -266,7 +277,7 @@ def test_wrong_token_is_refused(cluster: str, monkeypatch: pytest.MonkeyPatch) -
 
 
 def test_auth_headers_follow_ray_sources(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    from workflows.jobs import auth_headers, dashboard_url, job_id_for
+    from motionaug.workflows.jobs import auth_headers, dashboard_url, job_id_for
 
     monkeypatch.delenv("RAY_AUTH_TOKEN", raising=False)
     monkeypatch.delenv("RAY_AUTH_MODE", raising=False)
@@ -301,7 +312,7 @@ def test_kuberay_rayjob_runs_motionaug_with_token_auth() -> None:
     assert job["spec"]["entrypoint"].startswith("motionaug run ") and "--address auto" in job["spec"]["entrypoint"]
     cluster = job["spec"]["rayClusterSpec"]
     assert cluster["rayVersion"] == "2.60.0" and cluster["authOptions"]["mode"] == "token"
-    assert all(c["image"].startswith(("ghcr.io/example/motionaug:")) for c in containers(cluster))
+    assert all(c["image"].startswith("ghcr.io/example/motionaug:") for c in containers(cluster))
 
 
 def test_kuberay_raycluster_has_cpu_and_gpu_groups() -> None:

@@ -10,23 +10,43 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from augment.clip import MotionClip
-from augment.corpus.humanml3d import HumanML3DReader, span_id, write_humanml3d
-from schemas.errors import MotionDataError
 from conftest import FIXTURES, require_shared
-from schemas.captions import Caption
+
+from motionaug.augment.corpus.clip import MotionClip
+from motionaug.augment.corpus.humanml3d import HumanML3DReader, span_id, write_humanml3d
+from motionaug.schemas.captions import Caption
+from motionaug.schemas.errors import MotionDataError
 
 FIXTURE = FIXTURES / "corpus" / "humanml3d"
 WIDTH = 263
 # Frames per fixture id: 000001 has a 1.0-4.0 s span, 000002 only a 0.5-2.5 s span, 012314 a 0.0-2.0 s span.
-LENGTHS = {"000001": 120, "000002": 60, "000003": 45, "012314": 170, "M000001": 120, "M000002": 60,
-           "M000003": 45, "M012314": 170, "004822": 80, "014457": 199}  # fmt: skip
+LENGTHS = {
+    "000001": 120,
+    "000002": 60,
+    "000003": 45,
+    "012314": 170,
+    "M000001": 120,
+    "M000002": 60,
+    "M000003": 45,
+    "M012314": 170,
+    "004822": 80,
+    "014457": 199,
+}
 # What the fixture yields: every id's whole clip except 000002 (span captions only), plus three cuts.
 EXPECTED_IDS = [
-    "000001", "000001_0100_0400", "000002_0050_0250", "000003", "012314", "012314_0000_0200",
-    "M000001", "M000002", "M000003", "M012314", "004822", "014457",
-]  # fmt: skip
+    "000001",
+    "000001_0100_0400",
+    "000002_0050_0250",
+    "000003",
+    "012314",
+    "012314_0000_0200",
+    "M000001",
+    "M000002",
+    "M000003",
+    "M012314",
+    "004822",
+    "014457",
+]
 
 
 def motion_for(clip_id: str, n_frames: int) -> np.ndarray:
@@ -51,8 +71,15 @@ def test_reads_fixture_with_span_cuts(corpus: Path) -> None:
     assert list(clips) == EXPECTED_IDS and reader.rejects == []
     assert reader.ids() == list(LENGTHS)[:8] + ["004822", "014457"]
     whole = clips["000001"]
-    assert whole.motion.dtype == np.float32 and whole.motion.flags.writeable and np.array_equal(whole.motion, motion_for("000001", 120))
-    assert [c.text for c in whole.captions] == ["a man kicks something with his left leg.", "a person kicks forward with the left foot."]
+    assert (
+        whole.motion.dtype == np.float32
+        and whole.motion.flags.writeable
+        and np.array_equal(whole.motion, motion_for("000001", 120))
+    )
+    assert [c.text for c in whole.captions] == [
+        "a man kicks something with his left leg.",
+        "a person kicks forward with the left foot.",
+    ]
     cut = clips[span_id("000001", 1.0, 4.0)]
     assert np.array_equal(cut.motion, motion_for("000001", 120)[20:80])  # frames [int(1.0*20), int(4.0*20))
     assert [(c.text, c.start, c.end) for c in cut.captions] == [("someone steps back after kicking.", 0.0, 0.0)]
@@ -151,7 +178,11 @@ def test_bad_motion_file_is_one_reject(corpus: Path, damage, reason: str) -> Non
     [
         (None, "texts/M000003.txt", "caption file is missing"),
         ("\n\n", "texts/M000003.txt", "caption file has no captions"),
-        ("a person walks.#a/DET person/NOUN walk/VERB#0.0#0.0\nbroken line#walk/VERB\n", "texts/M000003.txt:2", "found 2"),
+        (
+            "a person walks.#a/DET person/NOUN walk/VERB#0.0#0.0\nbroken line#walk/VERB\n",
+            "texts/M000003.txt:2",
+            "found 2",
+        ),
         ("a person walks.#a/DET person/NOUN walk#0.0#0.0\n", "texts/M000003.txt:1", "'walk' is not 'word/POS'"),
         (b"caf\xe9 walk#walk/VERB#0.0#0.0\n", "texts/M000003.txt", "not UTF-8"),
     ],
@@ -254,7 +285,11 @@ def test_mean_std(corpus: Path) -> None:
 
 
 def _tree_digest(root: Path) -> dict[str, str]:
-    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(root.rglob("*")) if p.is_file()}
+    return {
+        str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(root.rglob("*"))
+        if p.is_file()
+    }
 
 
 def test_write_read_round_trip_is_byte_stable(corpus: Path, tmp_path: Path) -> None:

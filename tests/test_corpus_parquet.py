@@ -12,20 +12,20 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from augment.clip import MotionClip
-from augment.corpus import (
+from motionaug.augment.corpus import (
+    Corpus,
     ParquetCorpusWriter,
     clips_to_table,
     detect_format,
     inspect_corpus,
-    open_corpus,
     read_parquet_corpus,
     table_to_clips,
     write_humanml3d,
 )
-from schemas.errors import MotionDataError
-from schemas.captions import Caption
-from schemas.corpus import CORPUS_SCHEMA_VERSION, corpus_schema
+from motionaug.augment.corpus.clip import MotionClip
+from motionaug.schemas.captions import Caption
+from motionaug.schemas.corpus import CORPUS_SCHEMA_VERSION, corpus_schema
+from motionaug.schemas.errors import MotionDataError
 
 WIDTH = 263
 
@@ -40,12 +40,16 @@ def make_clips(n: int, width: int = WIDTH) -> list[MotionClip]:
         ]
         clips.append(
             MotionClip(
-                id=f"clip{i:03d}", motion=rng.standard_normal((10 + i, width)).astype(np.float32),
-                captions=captions[: 1 + i % 2], fps=20.0 if i % 3 else 12.5,
-                content=["walk", "run"][i % 2], style=None if i % 4 == 0 else "proud", source=f"bandai/{i}.bvh",
+                id=f"clip{i:03d}",
+                motion=rng.standard_normal((10 + i, width)).astype(np.float32),
+                captions=captions[: 1 + i % 2],
+                fps=20.0 if i % 3 else 12.5,
+                content=["walk", "run"][i % 2],
+                style=None if i % 4 == 0 else "proud",
+                source=f"bandai/{i}.bvh",
                 meta={"split": "train"} if i % 2 else {"parent": "x", "note": "ä"},
             )
-        )  # fmt: skip
+        )
     return clips
 
 
@@ -53,7 +57,14 @@ def assert_same(a: list[MotionClip], b: list[MotionClip]) -> None:
     assert [c.id for c in a] == [c.id for c in b]
     for x, y in zip(a, b):
         assert np.array_equal(x.motion, y.motion) and y.motion.dtype == np.float32
-        assert (x.captions, x.fps, x.content, x.style, x.source, x.meta) == (y.captions, y.fps, y.content, y.style, y.source, y.meta)
+        assert (x.captions, x.fps, x.content, x.style, x.source, x.meta) == (
+            y.captions,
+            y.fps,
+            y.content,
+            y.style,
+            y.source,
+            y.meta,
+        )
 
 
 def test_table_round_trip_keeps_every_field() -> None:
@@ -90,8 +101,12 @@ def test_readable_as_is_by_pyarrow_pandas_duckdb(tmp_path: Path) -> None:
     frame = pd.read_parquet(path)
     assert list(frame["id"]) == [c.id for c in clips]
     row = frame.iloc[3]
-    assert np.array_equal(np.asarray(row["motion"], np.float32).reshape(row["n_frames"], row["n_feats"]), clips[3].motion)
-    rows = duckdb.sql(f"select id, n_frames, len(captions), captions[1].text, style from '{path}' order by id").fetchall()
+    assert np.array_equal(
+        np.asarray(row["motion"], np.float32).reshape(row["n_frames"], row["n_feats"]), clips[3].motion
+    )
+    rows = duckdb.sql(
+        f"select id, n_frames, len(captions), captions[1].text, style from '{path}' order by id"
+    ).fetchall()
     assert rows[1] == ("clip001", 11, 2, "a person walks 1 steps.", "proud")
     assert rows[0][4] is None
     [(first_value,)] = duckdb.sql(f"select motion[264] from '{path}' where id = 'clip002'").fetchall()
@@ -116,7 +131,7 @@ def test_rewrite_drops_stale_parts_and_abort_publishes_nothing(tmp_path: Path) -
 
 
 def test_empty_corpus_is_a_readable_file(tmp_path: Path) -> None:
-    with ParquetCorpusWriter(tmp_path / "empty.parquet", feature_dim=251, skeleton="kit") as writer:
+    with ParquetCorpusWriter(tmp_path / "empty.parquet", feature_dim=251, skeleton="kit"):
         pass
     assert list(read_parquet_corpus(tmp_path / "empty.parquet")) == []
     info = inspect_corpus(tmp_path / "empty.parquet")
@@ -154,10 +169,10 @@ def test_open_and_inspect_detect_each_format(tmp_path: Path) -> None:
     assert detect_format(tmp_path / "pq") == detect_format(tmp_path / "pq" / "part-00000.parquet") == "parquet"
     with pytest.raises(MotionDataError, match="not a corpus"):
         detect_format(tmp_path)
-    reader = open_corpus(tmp_path / "pq")
+    reader = Corpus(tmp_path / "pq")
     assert_same(clips, list(reader))
     assert reader.rejects == []
-    assert [c.id for c in open_corpus(tmp_path / "h3d")] == ["clip002", "clip004"]
+    assert [c.id for c in Corpus(tmp_path / "h3d")] == ["clip002", "clip004"]
     info = inspect_corpus(tmp_path / "pq")
     assert (info.format, info.clips, info.frames, info.captions) == ("parquet", 5, 60, 7)
     assert info.contents == {"run": 2, "walk": 3} and info.styles == {"proud": 3} and info.splits == {"train": 2}
@@ -165,4 +180,10 @@ def test_open_and_inspect_detect_each_format(tmp_path: Path) -> None:
     (tmp_path / "h3d" / "new_joint_vecs" / "clip004.npy").write_bytes(b"broken")
     shutil.copy(tmp_path / "h3d" / "all.txt", tmp_path / "h3d" / "train.txt")
     info = inspect_corpus(tmp_path / "h3d")
-    assert (info.format, info.clips, info.frames, info.rejects, info.splits) == ("humanml3d", 1, 12, 1, {"train": 2, "all": 2})
+    assert (info.format, info.clips, info.frames, info.rejects, info.splits) == (
+        "humanml3d",
+        1,
+        12,
+        1,
+        {"train": 2, "all": 2},
+    )

@@ -8,19 +8,19 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from augment.corpus.rejects import Reject, read_rejects, write_rejects
-from augment.corpus.tokens import (
+from motionaug.augment.corpus.rejects import Reject, read_rejects, write_rejects
+from motionaug.augment.io import atomic_open, atomic_write_text
+from motionaug.augment.text.tokens import (
     UPOS_TAGS,
     default_tokens,
     format_caption_line,
     parse_caption_line,
     parse_tokens,
 )
-from schemas.errors import MotionDataError
-from augment.io import atomic_open, atomic_write_text
-from schemas.captions import Caption
+from motionaug.schemas.captions import Caption
+from motionaug.schemas.errors import MotionDataError
 
-EXAMPLE = "a man kicks something with his left leg.#a/DET man/NOUN kick/VERB something/PRON with/ADP his/DET left/ADJ leg/NOUN#0.0#0.0"
+EXAMPLE = "a man kicks something with his left leg.#a/DET man/NOUN kick/VERB something/PRON with/ADP his/DET left/ADJ leg/NOUN#0.0#0.0"  # noqa: E501 (a real caption line)
 
 
 def test_parse_reference_example() -> None:
@@ -72,7 +72,9 @@ def test_empty_token_field_is_no_tokens_and_tolerated_tags_pass() -> None:
     span=st.tuples(st.floats(0, 600, allow_nan=False), st.floats(0, 600, allow_nan=False)),
 )
 def test_format_then_parse_is_identity(text: str, words: list[str], tags: list[str], span: tuple[float, float]) -> None:
-    caption = Caption(text=text.strip(), tokens=[f"{w}/{t}" for w, t in zip(words, tags)] or ["x/X"], start=span[0], end=span[1])
+    caption = Caption(
+        text=text.strip(), tokens=[f"{w}/{t}" for w, t in zip(words, tags)] or ["x/X"], start=span[0], end=span[1]
+    )
     line = format_caption_line(caption, "clip")
     assert "\n" not in line
     assert parse_caption_line(line + "\n", "clip") == caption

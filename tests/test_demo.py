@@ -6,16 +6,19 @@ import os
 from pathlib import Path
 
 import pyarrow.parquet as pq
+import pytest
 
-from augment.corpus import HumanML3DReader
+from motionaug.augment.corpus import HumanML3DReader
+
+pytestmark = pytest.mark.slow
 
 
 def test_demo_runs_end_to_end_and_resumes(tmp_path: Path) -> None:
-    """The demo's own path (corpus, base-model pre-training, on-the-fly fine-tunes and transfers, export) at tiny size."""
+    """The demo's own path (corpus, base-model pre-training, on-the-fly fine-tunes, transfers, export), tiny size."""
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     import ray
 
-    from workflows.demo import DEMO_STYLES, run_demo
+    from motionaug.workflows.demo import DEMO_STYLES, run_demo
 
     try:
         first = run_demo(tmp_path, clips=400, size="tiny")
@@ -23,11 +26,15 @@ def test_demo_runs_end_to_end_and_resumes(tmp_path: Path) -> None:
         rows = pq.read_table(tmp_path / "run" / "shards").num_rows
         assert rows == first.run.manifest.rows == len(neutral) * len(DEMO_STYLES)
         assert first.export.stylized > 0 and (tmp_path / "expanded" / "train.txt").is_file()
-        assert set(pq.read_table(tmp_path / "run" / "shards", columns=["method"]).column("method").to_pylist()) == {"onthefly"}
+        assert set(pq.read_table(tmp_path / "run" / "shards", columns=["method"]).column("method").to_pylist()) == {
+            "onthefly"
+        }
         assert (tmp_path / "base_models" / "base.json").is_file()
         second = run_demo(tmp_path, clips=400, size="tiny")
         assert second.run.transferred == 0 and second.run.manifest.rows == rows
-        assert all(t.skipped == t.tasks for name, t in second.run.manifest.stages.items() if name in ("finetune", "transfer"))
+        assert all(
+            t.skipped == t.tasks for name, t in second.run.manifest.stages.items() if name in ("prepare", "transfer")
+        )
     finally:
         if ray.is_initialized():
             ray.shutdown()

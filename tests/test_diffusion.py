@@ -9,7 +9,7 @@ import pytest
 import torch
 from torch import Tensor
 
-from augment.diffusion import (
+from motionaug.augment.diffusion import (
     InpaintSpec,
     NoiseSchedule,
     SamplerStep,
@@ -26,7 +26,7 @@ from augment.diffusion import (
     space_timesteps,
     start_step_for,
 )
-from schemas.errors import MotionDataError
+from motionaug.schemas.errors import MotionDataError
 
 B, T, D = 2, 6, 5
 
@@ -127,7 +127,9 @@ def test_posterior_matches_gaussian_conditioning() -> None:
     x0 = torch.randn(B, T, D, generator=gen(1), dtype=torch.float64)
     x_t = torch.randn(B, T, D, generator=gen(2), dtype=torch.float64)
     for t_val in (1, 37, 500, 998):
-        ab, ab_prev, alpha = (float(v) for v in (sched.alphas_cumprod[t_val], sched.alphas_cumprod[t_val - 1], sched.alphas[t_val]))
+        ab, ab_prev, alpha = (
+            float(v) for v in (sched.alphas_cumprod[t_val], sched.alphas_cumprod[t_val - 1], sched.alphas[t_val])
+        )
         cov = math.sqrt(alpha) * (1 - ab_prev)
         want_mean = math.sqrt(ab_prev) * x0 + cov / (1 - ab) * (x_t - math.sqrt(ab) * x0)
         want_var = (1 - ab_prev) - cov**2 / (1 - ab)
@@ -157,7 +159,9 @@ def test_ddim_eta1_unspaced_is_ddpm_step_for_step() -> None:
     sched = NoiseSchedule.cosine()
     x, x0_hat = a[500].x_t, a[500].pred_x0
     for index in (1, 300, 999):  # the noise-free DDPM update (posterior mean) == DDIM eta=1 without noise
-        assert torch.allclose(ddpm_step(sched, x, x0_hat, index, None), ddim_step(sched, x, x0_hat, index, 1.0, None), atol=1e-12)
+        assert torch.allclose(
+            ddpm_step(sched, x, x0_hat, index, None), ddim_step(sched, x, x0_hat, index, 1.0, None), atol=1e-12
+        )
 
 
 def test_ddim_eta0_stays_on_q_path() -> None:
@@ -248,7 +252,9 @@ def test_inpaint_frames_and_bool_channels() -> None:
     frames = torch.zeros(T, dtype=torch.bool)
     frames[:2] = True
     channels = torch.tensor([True, False, False, False, True])
-    out = ddim_sample(SmoothDenoiser(torch.float32), (B, T, D), inpaint=InpaintSpec(reference, channels, frames), generator=gen(1))
+    out = ddim_sample(
+        SmoothDenoiser(torch.float32), (B, T, D), inpaint=InpaintSpec(reference, channels, frames), generator=gen(1)
+    )
     assert torch.equal(out[:, :2][..., channels], reference[:, :2][..., channels])
     assert not torch.allclose(out[:, 2:][..., channels], reference[:, 2:][..., channels])
     with pytest.raises(MotionDataError):

@@ -12,14 +12,14 @@ import pytest
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
-
-from augment.evaluation_inputs import pad_batch
-from augment.evaluator_training import classifier_accuracy, classifier_features, fit_classifier
 from conftest import FIXTURES, REPO
-from models.evaluators import content_classifier, joints_to_evaluator_input, make_classifier, style_classifier
-from models.minilm import BertEncoder, load_tokenizer
-from models.motion_encoder import MotionEncoder, MotionEncoderConfig, semantic_loss
-from models.text_encoder import (
+
+from motionaug.augment.eval.inputs import pad_batch
+from motionaug.augment.training.evaluators import classifier_accuracy, classifier_features, fit_classifier
+from motionaug.models.evaluators import content_classifier, joints_to_evaluator_input, make_classifier, style_classifier
+from motionaug.models.minilm import BertEncoder, load_tokenizer
+from motionaug.models.motion_encoder import MotionEncoder, MotionEncoderConfig, semantic_loss
+from motionaug.models.text_encoder import (
     CachedTextEncoder,
     ClipTextEncoder,
     MiniLMTextEncoder,
@@ -231,7 +231,7 @@ def test_motion_encoder_shares_the_embedding_parameters() -> None:
 
 
 def test_motion_encoder_shares_the_mdm_input_layer() -> None:
-    from models.mdm import MDM, MDMConfig
+    from motionaug.models.mdm import MDM, MDMConfig
 
     mdm = MDM(MDMConfig.named("tiny", n_feats=FEATS, text_dim=TEXT_DIM))
     enc = MotionEncoder(MotionEncoderConfig.named("tiny", input_dim=FEATS, text_dim=TEXT_DIM), mdm.input_process)

@@ -15,11 +15,13 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 import torch
+from fixtures.evaluation.tiny_run import add_loss_curve, build_base_models, build_run, make_corpus
 from typer.testing import CliRunner
 
-from augment.evaluation import SCORES_FILE, evaluate_run, load_classifiers, paired_ground_truth
-from augment.evaluation_inputs import pad_batch
-from augment.metrics import (
+from motionaug.augment.corpus import Corpus
+from motionaug.augment.eval.evaluation import SCORES_FILE, evaluate_run, load_classifiers, paired_ground_truth
+from motionaug.augment.eval.inputs import pad_batch
+from motionaug.augment.eval.metrics import (
     diversity,
     foot_contact_accuracy,
     foot_contacts_from_joints,
@@ -28,13 +30,12 @@ from augment.metrics import (
     mpjpe,
     recognition_accuracy,
 )
-from augment.corpus import open_corpus
-from augment.rendering import features_to_joints
-from augment.report import format_value
-from augment.shards import iter_shard_rows, row_motion
-from fixtures.evaluation.tiny_run import add_loss_curve, build_base_models, build_run, make_corpus
-from schemas.skeleton import T2M
-from workflows.cli import app
+from motionaug.augment.eval.report import format_value
+from motionaug.augment.outputs.run_dir import RunDir
+from motionaug.augment.outputs.shards import iter_shard_rows, row_motion
+from motionaug.augment.render.previews import features_to_joints
+from motionaug.schemas.skeleton import T2M
+from motionaug.workflows.cli import app
 
 STYLE_NAMES = ["proud", "old"]
 CURVE = [{"step": i, "l_rec": 1.0 / (i + 1), "l_s": 0.3 / (i + 1), "total": 1.3 / (i + 1)} for i in range(20)]
@@ -99,7 +100,7 @@ def test_html_is_self_contained_with_png_plots(tiny) -> None:
 def test_scores_parquet_matches_metrics_computed_directly(tiny) -> None:
     run, corpus = tiny["run"], tiny["corpus"]
     scores = scores_by_id(run)
-    sources = {c.id: c for c in open_corpus(corpus)}
+    sources = {c.id: c for c in Corpus(corpus)}
     rows = list(iter_shard_rows(run))
     assert sorted(scores) == sorted(r["output_id"] for r in rows)
     for row in rows[:4]:
@@ -108,7 +109,9 @@ def test_scores_parquet_matches_metrics_computed_directly(tiny) -> None:
         assert got["foot_skating"] == pytest.approx(foot_skating_ratio(joints, T2M, 20.0), abs=1e-12)
         content = features_to_joints(sources[row["source_id"]].motion)
         n = min(len(joints), len(content))
-        agree = foot_contact_accuracy(foot_contacts_from_joints(joints[:n], T2M), foot_contacts_from_joints(content[:n], T2M))
+        agree = foot_contact_accuracy(
+            foot_contacts_from_joints(joints[:n], T2M), foot_contacts_from_joints(content[:n], T2M)
+        )
         assert got["contact_agreement"] == pytest.approx(agree, abs=1e-12)
         truth = paired_ground_truth(sources[row["source_id"]].meta["spec"], row["style"])
         m = min(len(truth), len(joints))
@@ -125,7 +128,7 @@ def test_report_numbers_equal_direct_sra_cra_fmd(tiny) -> None:
     run, corpus = tiny["run"], tiny["corpus"]
     table = summary_table((run / "report.md").read_text())
     classifiers = load_classifiers(tiny["base"])
-    real = [c for c in open_corpus(corpus) if c.style == "proud"]
+    real = [c for c in Corpus(corpus) if c.style == "proud"]
     real_feats = classifiers.style.features(*pad_batch([features_to_joints(c.motion) for c in real])).numpy()
     rows = _style_rows(run, "proud")
     joints, mask = pad_batch([features_to_joints(row_motion(r)) for r in rows])
@@ -134,7 +137,9 @@ def test_report_numbers_equal_direct_sra_cra_fmd(tiny) -> None:
         content_logits = classifiers.content(joints, mask)
         feats = classifiers.style.features(joints, mask).numpy()
     sra = recognition_accuracy(style_logits, torch.full((len(rows),), classifiers.style_labels.index("proud")))
-    cra = recognition_accuracy(content_logits, torch.tensor([classifiers.content_labels.index(r["content"]) for r in rows]))
+    cra = recognition_accuracy(
+        content_logits, torch.tensor([classifiers.content_labels.index(r["content"]) for r in rows])
+    )
     assert table["proud"]["SRA"] == format_value("pct", sra)
     assert table["proud"]["CRA"] == format_value("pct", cra)
     assert table["proud"]["FMD"] == format_value("num", frechet_distance(feats, real_feats))
@@ -148,9 +153,13 @@ def test_evaluation_without_base_models_says_so_instead_of_inventing(tiny) -> No
     assert all(s.sra is None and s.cra is None and s.fmd is None for s in evaluation.styles)
     assert any("no base models" in note for note in evaluation.notes)
     assert evaluation.overall.foot_skating is not None and evaluation.overall.mpjpe is not None
-    assert set(evaluation.loss_curves) == {"proud"} and evaluation.loss_curves["proud"][3]["total"] == pytest.approx(1.3 / 4)
-    assert evaluation.throughput == pytest.approx(32 / 2.0)  # rows / the transfer seconds the fixture recorded
-    assert list(evaluation.stages) == ["plan", "finetune", "transfer"]  # pipeline order, not the manifest's sorted keys
+    assert set(evaluation.loss_curves) == {"proud"} and evaluation.loss_curves["proud"][3]["total"] == pytest.approx(
+        1.3 / 4
+    )
+    manifest = RunDir(tiny["run"]).manifest()
+    assert manifest.rows == 32
+    assert evaluation.throughput == pytest.approx(32 / manifest.stages["transfer"].seconds)  # rows / transfer seconds
+    assert list(evaluation.stages) == ["plan", "prepare", "transfer"]  # pipeline order, not the manifest's sorted keys
 
 
 def test_export_min_content_score_filters_by_scores_parquet(tiny, tmp_path: Path) -> None:
@@ -175,7 +184,7 @@ def test_evaluate_refuses_an_unfinished_run_in_one_line(tmp_path: Path) -> None:
 
 
 def test_loss_curves_accept_numbers_or_records_and_skip_styles_without(tmp_path: Path) -> None:
-    from augment.evaluation import loss_curves
+    from motionaug.augment.eval.evaluation import loss_curves
 
     (tmp_path / "styles" / "a").mkdir(parents=True)
     (tmp_path / "styles" / "a" / "artifact.json").write_text('{"losses": [3.0, 2.0, 1.5]}')

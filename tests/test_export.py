@@ -8,34 +8,44 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from augment.corpus import HumanML3DReader, read_parquet_corpus
-from schemas.errors import MotionDataError
-from augment.export import export_run
-from schemas.run_config import load_run_config
+from motionaug.augment.corpus import HumanML3DReader, read_parquet_corpus
+from motionaug.augment.outputs.export import export_run
+from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.run_config import load_run_config
 
 N_CLIPS = 30
 STYLES = [
-    {"name": "proud", "words": {"adjective": "proud", "adverb": "proudly"},
-     "examples": [{"source": "000004", "description": "a person walks proudly"}]},
-    {"name": "old", "words": {"adjective": "old", "phrases": ["like an old person"]},
-     "examples": [{"source": "000008", "description": "a person walks like an old person"}]},
-]  # fmt: skip
+    {
+        "name": "proud",
+        "words": {"adjective": "proud", "adverb": "proudly"},
+        "examples": [{"source": "000004", "description": "a person walks proudly"}],
+    },
+    {
+        "name": "old",
+        "words": {"adjective": "old", "phrases": ["like an old person"]},
+        "examples": [{"source": "000008", "description": "a person walks like an old person"}],
+    },
+]
 
 
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     import ray
 
-    from augment.synth import generate_corpus
-    from workflows.ray_executor import execute_run
+    from motionaug.augment.synth import generate_corpus
+    from motionaug.workflows.ray_executor import execute_run
 
     root = tmp_path_factory.mktemp("export")
     generate_corpus(root / "corpus", N_CLIPS, seed=1)
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
-        data = {"corpus": {"path": str(root / "corpus")}, "styles": STYLES, "output": str(root / "run"),
-                "compute": {"unit_size": 16, "batch_size": 8}}  # fmt: skip
+        data = {
+            "corpus": {"path": str(root / "corpus")},
+            "styles": STYLES,
+            "output": str(root / "run"),
+            "compute": {"unit_size": 16, "batch_size": 8},
+        }
         execute_run(load_run_config(None, data=data))
     finally:
         ray.shutdown()

@@ -3,15 +3,13 @@
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-from schemas.errors import MotionDataError
-from augment.features import (
+from motionaug.augment.motion.features import (
     FEATURE_BLOCKS,
     Normalizer,
     compute_mean_std,
@@ -24,7 +22,7 @@ from augment.features import (
     recover_from_rot,
     recover_root_rot_pos,
 )
-from augment.kinematics import (
+from motionaug.augment.motion.kinematics import (
     _gaussian_smooth_time,
     forward_kinematics,
     forward_kinematics_cont6d,
@@ -33,15 +31,13 @@ from augment.kinematics import (
     target_offsets,
     uniform_skeleton,
 )
-from augment.rotations import axis_angle_to_quat, euler_to_quat, qmul, quat_to_cont6d
-from schemas.skeleton import KIT, T2M, Skeleton
-from conftest import require_shared
+from motionaug.augment.motion.rotations import axis_angle_to_quat, euler_to_quat, qmul, quat_to_cont6d
+from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.skeleton import KIT, T2M, Skeleton
 
 torch.set_num_threads(1)
 FIXTURES = Path(__file__).resolve().parent / "fixtures" / "humanml3d"
 CLIP = "012314.npy"
-
-
 
 
 @pytest.fixture(scope="module")
@@ -86,7 +82,7 @@ def kit_offsets() -> np.ndarray:
 
 
 def test_shipped_t2m_offsets_equal_reference_clip_frame0() -> None:
-    joints = np.load(require_shared("humanml3d_sample", "joints", "000021.npy"))[0, :22]
+    joints = np.load(FIXTURES / "joints" / "000021.npy")[0, :22]
     parents = T2M.parents
     raw = np.asarray(T2M.raw_offsets, dtype=np.float64)
     # the reference: raw direction times bone length, computed in float32 (``get_offsets_joints``)
@@ -281,7 +277,9 @@ def test_mirrored_features_recover_to_mirrored_joints(dataset_vecs: np.ndarray) 
 def test_mirror_features_equals_extracting_mirrored_joints() -> None:
     """Channel-wise mirroring is what re-extraction gives, for a rig whose two sides match."""
     offsets = symmetric_offsets(T2M, t2m_target_offsets())
-    joints = extract_features_and_joints(synthetic_motion(T2M, offsets, n_frames=40, seed=8), target_offsets=offsets).joints
+    joints = extract_features_and_joints(
+        synthetic_motion(T2M, offsets, n_frames=40, seed=8), target_offsets=offsets
+    ).joints
     direct = extract_features(mirror_joints(joints), target_offsets=offsets)
     np.testing.assert_allclose(mirror_features(extract_features(joints, target_offsets=offsets)), direct, atol=1e-5)
 
@@ -308,7 +306,7 @@ def test_dataset_std_is_constant_within_our_blocks() -> None:
 
 
 def test_shared_mean_std_load() -> None:
-    norm = Normalizer.load(require_shared("humanml3d_sample"))
+    norm = Normalizer.load(FIXTURES)
     assert norm.mean.shape == norm.std.shape == (263,) and norm.mean.dtype == np.float32
 
 
@@ -377,7 +375,7 @@ def test_quaternion_root_helpers_are_consistent() -> None:
 
 def test_extraction_round_trips_a_curved_walk_through_180_degrees() -> None:
     """Turning through 180 degrees: the reference's asin(y) flipped one frame's turn; ours must not."""
-    from augment.synth.animator import ClipSpec, render
+    from motionaug.augment.synth.animator import ClipSpec, render
 
     clip = render(ClipSpec(content="walk_curve", duration=6, curvature=0.7))
     ex = extract_features_and_joints(clip.joints)

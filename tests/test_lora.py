@@ -9,8 +9,7 @@ import torch
 from safetensors.torch import load_file, save_file
 from torch import Tensor, nn
 
-from schemas.errors import MotionDataError
-from models.lora import (
+from motionaug.models.lora import (
     LoRALinear,
     apply_lora,
     base_state_dict,
@@ -19,7 +18,8 @@ from models.lora import (
     lora_state_dict,
     merge_lora,
 )
-from models.mdm import MDM, MDMConfig
+from motionaug.models.mdm import MDM, MDMConfig
+from motionaug.schemas.errors import MotionDataError
 
 torch.set_num_threads(1)
 FEATS, TEXT = 12, 16

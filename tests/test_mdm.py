@@ -9,12 +9,12 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from augment.diffusion import NoiseSchedule, bind_model, ddim_sample, x0_training_loss
-from schemas.errors import MotionDataError
-from models.attention import run_encoder
-from models.lora import apply_lora
-from models.mdm import MDM, MDMConfig
-from models.mdm_checkpoint import load_official_mdm_state_dict
+from motionaug.augment.diffusion import NoiseSchedule, bind_model, ddim_sample, x0_training_loss
+from motionaug.models.attention import run_encoder
+from motionaug.models.lora import apply_lora
+from motionaug.models.mdm import MDM, MDMConfig
+from motionaug.models.mdm_checkpoint import load_official_mdm_state_dict
+from motionaug.schemas.errors import MotionDataError
 
 torch.set_num_threads(1)
 B, T = 3, 12
@@ -148,14 +148,18 @@ def test_bf16_autocast_close_to_fp32() -> None:
 def test_sampling_with_tiny_model_end_to_end() -> None:
     model = tiny().eval()
     x, t, text, mask = inputs(model)
-    out = ddim_sample(bind_model(model, text, mask), x.shape, steps=5, guidance_scale=2.5, generator=torch.Generator().manual_seed(1))
+    out = ddim_sample(
+        bind_model(model, text, mask), x.shape, steps=5, guidance_scale=2.5, generator=torch.Generator().manual_seed(1)
+    )
     assert out.shape == x.shape and torch.isfinite(out).all()
 
 
 # ---------------------------------------------------------------- official checkpoint layout
 
 
-def official_state_dict(d: int = 512, ff: int = 1024, layers: int = 8, feats: int = 263, text: int = 512) -> dict[str, Tensor]:
+def official_state_dict(
+    d: int = 512, ff: int = 1024, layers: int = 8, feats: int = 263, text: int = 512
+) -> dict[str, Tensor]:
     """Random tensors in the official MDM HumanML3D trans_enc key layout and shapes."""
     g = torch.Generator().manual_seed(42)
     rnd = lambda *shape: torch.randn(*shape, generator=g) * 0.05  # noqa: E731

@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from schemas.errors import MotionDataError
-from augment.metrics import (
+from motionaug.augment.eval.metrics import (
     diversity,
     foot_contact_accuracy,
     foot_contacts_from_features,
@@ -21,7 +20,9 @@ from augment.metrics import (
     recognition_accuracy,
     retrieval_r_at_k,
 )
-from schemas.skeleton import T2M
+from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.skeleton import T2M
+
 
 def test_recognition_accuracy_from_logits_and_ids() -> None:
     logits = torch.tensor([[2.0, 0.1], [0.0, 1.0], [3.0, -1.0], [0.2, 0.1]])
@@ -150,8 +151,8 @@ def test_retrieval_r_at_k() -> None:
 
 
 def test_features_to_joints_matches_the_dataset_and_feeds_the_classifier(shared_data: Path) -> None:
-    from augment.evaluation_inputs import features_to_joints, pad_batch
-    from models.evaluators import content_classifier
+    from motionaug.augment.eval.inputs import features_to_joints, pad_batch
+    from motionaug.models.evaluators import content_classifier
 
     feats = np.load(shared_data / "humanml3d_sample" / "new_joint_vecs" / "012314.npy")
     joints_ref = np.load(shared_data / "humanml3d_sample" / "new_joints" / "012314.npy")

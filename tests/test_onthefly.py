@@ -16,17 +16,15 @@ import pytest
 import torch
 from safetensors.torch import load_file, save_file
 
-from augment.base_models import BaseModels, BaseModelsInfo, config_dict
-from augment.clip import MotionClip
-from augment.corpus.rejects import Reject
-from schemas.errors import MotionDataError
-from augment.features import compute_mean_std
-from augment.methods.base import ARTIFACT_JSON, ARTIFACT_WEIGHTS, TransferOutput
-from augment.methods.onthefly import (
+from motionaug.augment.corpus.clip import MotionClip
+from motionaug.augment.corpus.rejects import Reject
+from motionaug.augment.corpus.style_examples import load_style_examples
+from motionaug.augment.methods.base import ARTIFACT_JSON, ARTIFACT_WEIGHTS, TransferOutput
+from motionaug.augment.methods.onthefly import (
     ContentPool,
     MotionBatch,
     OnTheFlyMethod,
-    OnTheFlyParams,
+    WeightAverage,
     finetune,
     kept_channels,
     make_pairs,
@@ -35,24 +33,22 @@ from augment.methods.onthefly import (
     resolve_tempo,
     style_vocab,
     trajectory_channels,
-    WeightAverage,
 )
-from augment.style_examples import load_style_examples
-from augment.synth import sample_spec
-from augment.synth.corpus import spec_to_clip
-from augment.tempo import retime
-from models.mdm import MDM, MDMConfig
-from models.motion_encoder import MotionEncoder, MotionEncoderConfig
-from schemas.captions import Caption
-from schemas.styles import StyleExample, StyleSpec, StyleWords
-from conftest import require_shared
+from motionaug.augment.motion.features import compute_mean_std
+from motionaug.augment.motion.tempo import retime
+from motionaug.augment.synth import sample_spec
+from motionaug.augment.synth.corpus import spec_to_clip
+from motionaug.augment.training.base_models import BaseModels, BaseModelsInfo, config_dict
+from motionaug.models.mdm import MDM, MDMConfig
+from motionaug.models.motion_encoder import MotionEncoder, MotionEncoderConfig
+from motionaug.schemas.captions import Caption
+from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.styles import StyleExample, StyleSpec, StyleWords
 
 torch.set_num_threads(1)
 FRAMES = 40
 FIXTURES = Path(__file__).resolve().parent / "fixtures"
 PROUD = StyleWords(adjective="proud", adverb="proudly", phrases=("in a proud way", "with pride"))
-
-
 
 
 class HashTextEncoder:
@@ -99,11 +95,15 @@ def base_dir(tmp_path_factory: pytest.TempPathFactory, clips: dict[str, MotionCl
     torch.manual_seed(0)
     prior_cfg = MDMConfig.named("tiny", dropout=0.0)
     enc_cfg = MotionEncoderConfig.named("tiny")
-    info = BaseModelsInfo(size="tiny", max_frames=196, prior=config_dict(prior_cfg), motion_encoder=config_dict(enc_cfg))
+    info = BaseModelsInfo(
+        size="tiny", max_frames=196, prior=config_dict(prior_cfg), motion_encoder=config_dict(enc_cfg)
+    )
     base = BaseModels(
-        info=info, prior=MDM(prior_cfg), motion_encoder=MotionEncoder(enc_cfg),
+        info=info,
+        prior=MDM(prior_cfg),
+        motion_encoder=MotionEncoder(enc_cfg),
         normalizer=compute_mean_std([c.motion for c in clips.values()]),
-    )  # fmt: skip
+    )
     return base.save(tmp_path_factory.mktemp("base"))
 
 
@@ -205,7 +205,9 @@ def test_transfer_moves_content_toward_the_example(base: BaseModels, clips: dict
 
 
 def test_inpaint_feet_keeps_the_contents_foot_contacts(base: BaseModels, clips: dict[str, MotionClip]) -> None:
-    method = OnTheFlyMethod(parse_params(FAST, lambda_s=0.0, max_steps=2, inpaint_feet=True), text_encoder=HashTextEncoder())
+    method = OnTheFlyMethod(
+        parse_params(FAST, lambda_s=0.0, max_steps=2, inpaint_feet=True), text_encoder=HashTextEncoder()
+    )
     model, _, _, _ = method.fit(proud_spec(), [clips["proud_walk"]], base, corpus=[])
     content = clips["walk"]
     (out,) = model.transfer([content])
@@ -218,7 +220,9 @@ def test_inpaint_feet_keeps_the_contents_foot_contacts(base: BaseModels, clips: 
 
 def test_the_params_seed_is_used_unless_the_caller_gives_one(base: BaseModels, clips: dict[str, MotionClip]) -> None:
     def curve(params_seed: int, seed: int | None) -> list[float]:
-        method = OnTheFlyMethod(parse_params(FAST, lambda_s=0.0, max_steps=3, seed=params_seed), text_encoder=HashTextEncoder())
+        method = OnTheFlyMethod(
+            parse_params(FAST, lambda_s=0.0, max_steps=3, seed=params_seed), text_encoder=HashTextEncoder()
+        )
         _, fit, _, _ = method.fit(proud_spec(), [clips["proud_walk"]], base, corpus=[], seed=seed)
         return [r["l_rec"] for r in fit.curve]
 
@@ -227,7 +231,9 @@ def test_the_params_seed_is_used_unless_the_caller_gives_one(base: BaseModels, c
 
 def test_semantic_loss_runs_on_the_corpus_and_is_recorded(base: BaseModels, clips: dict[str, MotionClip]) -> None:
     corpus = [clips["walk"], clips["kick"], clips["squat"], clips["angry_run"]]
-    method = OnTheFlyMethod(parse_params(FAST, batch_size=2, styled_corpus="neutralise"), text_encoder=HashTextEncoder())
+    method = OnTheFlyMethod(
+        parse_params(FAST, batch_size=2, styled_corpus="neutralise"), text_encoder=HashTextEncoder()
+    )
     model, fit, pool, skipped = method.fit(proud_spec(), [clips["proud_walk"]], base, corpus)
     assert len(fit.curve) == 2  # one pass over 4 clips in batches of 2
     assert len(pool) == 4 and skipped == 0  # the angry run was neutralised, not dropped
@@ -347,7 +353,7 @@ def test_full_finetune_artifact_and_base_mismatch(
     for f in base_dir.iterdir():
         (other / f.name).write_bytes(f.read_bytes())
     torch.manual_seed(9)
-    from augment.base_models import save_module
+    from motionaug.augment.training.base_models import save_module
 
     save_module(MDM(MDMConfig.named("tiny", dropout=0.0)), other / "prior.safetensors")
     with pytest.raises(MotionDataError, match="tuned from base models"):
@@ -372,7 +378,9 @@ def test_tempo_retimes_content_and_its_caption_segments_and_is_kept_in_the_artif
     assert isinstance(out, TransferOutput) and out.motion.shape == (2 * FRAMES, 263)  # half the pace: twice the frames
     assert {(c.start, c.end) for c in out.captions} == {(1.0, 3.0)}  # the segment moved with the clock
     np.testing.assert_array_equal(out.motion[:, :3], retime(walk.motion, 0.5, 1000)[:, :3])  # its (retimed) path kept
-    kept = OnTheFlyMethod(parse_params(FAST, lambda_s=0.0, max_steps=2, tempo="content"), text_encoder=HashTextEncoder())
+    kept = OnTheFlyMethod(
+        parse_params(FAST, lambda_s=0.0, max_steps=2, tempo="content"), text_encoder=HashTextEncoder()
+    )
     model, _, _, _ = kept.fit(proud_spec(), [clips["proud_walk"]], base, corpus=[walk])
     assert model.tempo == 1.0 and model.transfer([walk])[0].motion.shape == (FRAMES, 263)
 
@@ -403,10 +411,14 @@ def _spec(source: str, description: str = "a person walks proudly", joint_map: s
 
 def test_style_examples_load_from_clip_id_and_npy(tmp_path: Path, clips: dict[str, MotionClip]) -> None:
     np.save(tmp_path / "ex.npy", clips["proud_walk"].motion)
-    spec = StyleSpec(name="proud", words=PROUD, examples=[
-        StyleExample(source="ex0", description="a man walks with pride"),
-        StyleExample(source="ex.npy", description="a proud person walks"),
-    ])  # fmt: skip
+    spec = StyleSpec(
+        name="proud",
+        words=PROUD,
+        examples=[
+            StyleExample(source="ex0", description="a man walks with pride"),
+            StyleExample(source="ex.npy", description="a proud person walks"),
+        ],
+    )
     loaded = load_style_examples(spec, {"ex0": clips["proud_walk"]}.get, root=tmp_path)
     assert [c.motion.shape for c in loaded] == [(FRAMES, 263), (FRAMES, 263)]
     assert loaded[0].captions[0].text == "a man walks with pride" and loaded[1].style == "proud"
@@ -439,8 +451,8 @@ def test_style_example_unknown_id_and_foreign_bvh(tmp_path: Path) -> None:
         load_style_examples(_spec("000123"), {})
     foreign = tmp_path / "robot.bvh"
     foreign.write_text(
-        "HIERARCHY\nROOT Base\n{\n OFFSET 0 0 0\n CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation\n"
-        " JOINT Arm\n {\n  OFFSET 0 10 0\n  CHANNELS 3 Zrotation Xrotation Yrotation\n  End Site\n  {\n   OFFSET 0 5 0\n  }\n }\n}\n"
+        "HIERARCHY\nROOT Base\n{\n OFFSET 0 0 0\n CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation\n"  # noqa: E501 (BVH lines)
+        " JOINT Arm\n {\n  OFFSET 0 10 0\n  CHANNELS 3 Zrotation Xrotation Yrotation\n  End Site\n  {\n   OFFSET 0 5 0\n  }\n }\n}\n"  # noqa: E501 (BVH lines)
         "MOTION\nFrames: 2\nFrame Time: 0.0333333\n0 0 0 0 0 0 0 0 0\n0 0 0 0 0 0 0 0 0\n"
     )
     with pytest.raises(MotionDataError, match="no joint map") as err:
@@ -450,7 +462,7 @@ def test_style_example_unknown_id_and_foreign_bvh(tmp_path: Path) -> None:
 
 def test_workflow_sized_seeds_draw_noise() -> None:
     """The workflow derives 64-bit seeds per unit; torch refuses seeds of 2**63 and above unless they are folded."""
-    from augment.methods.onthefly import clip_noise
+    from motionaug.augment.methods.onthefly import clip_noise
 
     big = (1 << 64) - 5
     noise = clip_noise((2, 10, 4), ["a", "b"], big)

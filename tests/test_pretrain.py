@@ -12,21 +12,34 @@ import torch
 from pydantic import ValidationError
 from safetensors.torch import load_file
 
-from augment.base_models import BaseModels, BaseModelsInfo
-from schemas.errors import MotionDataError
-from augment.features import Normalizer, feature_slices
-from augment.geometric_losses import foot_contact_loss, geometric_losses, joint_position_loss, joint_velocity_loss
-from augment.diffusion import NoiseSchedule
-from augment.diffusion.gaussian import sample_timesteps
-from augment.pretrain import (
-    PretrainConfig, Run, _load_data, build_prior, corpus_fingerprint, ensure_base_models, pretrain, prior_loss, skeleton_for,
-)  # fmt: skip
-from augment.synth import generate_corpus
-from augment.training_data import build_motion_set, iter_batches, read_clips, sample_batch, split_ids
-from models.mdm import MDM, MDMConfig
-from models.motion_encoder import MotionEncoder, MotionEncoderConfig
-from models.text_encoder import make_text_encoder
-from schemas.skeleton import T2M
+from motionaug.augment.diffusion import NoiseSchedule
+from motionaug.augment.diffusion.gaussian import sample_timesteps
+from motionaug.augment.motion.features import Normalizer, feature_slices
+from motionaug.augment.synth import generate_corpus
+from motionaug.augment.training.base_models import BaseModels, BaseModelsInfo
+from motionaug.augment.training.data import build_motion_set, iter_batches, read_clips, sample_batch, split_ids
+from motionaug.augment.training.geometric_losses import (
+    foot_contact_loss,
+    geometric_losses,
+    joint_position_loss,
+    joint_velocity_loss,
+)
+from motionaug.augment.training.pretrain import (
+    PretrainConfig,
+    Run,
+    _load_data,
+    build_prior,
+    corpus_fingerprint,
+    ensure_base_models,
+    pretrain,
+    prior_loss,
+    skeleton_for,
+)
+from motionaug.models.mdm import MDM, MDMConfig
+from motionaug.models.motion_encoder import MotionEncoder, MotionEncoderConfig
+from motionaug.models.text_encoder import make_text_encoder
+from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.skeleton import T2M
 
 MODULES = ("prior", "motion_encoder", "content_classifier", "style_classifier")
 
@@ -36,8 +49,16 @@ class Interrupt(Exception):
 
 
 def tiny_config(**overrides: object) -> PretrainConfig:
-    defaults = {"prior_steps": 24, "encoder_steps": 16, "classifier_epochs": 3, "checkpoint_every": 10, "threads": 1,
-                "log_every": 1, "bf16": False, "max_frames": 60}  # fmt: skip
+    defaults = {
+        "prior_steps": 24,
+        "encoder_steps": 16,
+        "classifier_epochs": 3,
+        "checkpoint_every": 10,
+        "threads": 1,
+        "log_every": 1,
+        "bf16": False,
+        "max_frames": 60,
+    }
     return PretrainConfig.for_size("tiny", **{**defaults, **overrides})
 
 
@@ -113,7 +134,9 @@ def test_padding_never_reaches_the_geometric_losses_or_their_gradient(corpus: Pa
     assert pred.grad is not None and torch.all(pred.grad[0, 30:] == 0) and pred.grad[0, :30].abs().sum() > 0
 
 
-def test_input_perturbation_adds_exactly_its_extra_noise_to_the_prior_input(corpus: Path, text_encoder, tmp_path: Path) -> None:
+def test_input_perturbation_adds_exactly_its_extra_noise_to_the_prior_input(
+    corpus: Path, text_encoder, tmp_path: Path
+) -> None:
     """DDPM-IP: same batch, timesteps and first noise; the input differs by sqrt(1 - ab_t) * gamma * N(0, I)."""
     normalizer, train, test = _load_data(corpus, text_encoder)
     schedule, gamma = NoiseSchedule.cosine(), 0.5
@@ -147,7 +170,9 @@ def test_training_batches_crop_pad_mask_and_caption(corpus: Path, text_encoder) 
     normalizer = Normalizer.load(corpus)
     clips = read_clips(corpus, split_ids(corpus, "train"))
     data = build_motion_set(clips, normalizer, text_encoder)
-    assert len(data.texts) == len({c.text for clip in clips for c in clip.captions}) <= sum(len(c.captions) for c in clips)
+    assert (
+        len(data.texts) == len({c.text for clip in clips for c in clip.captions}) <= sum(len(c.captions) for c in clips)
+    )
     assert data.text_embed.shape == (len(data.texts), 384)
     assert set(data.content.tolist()) <= set(range(len(data.content_labels))) and data.style.min() >= 0
     batch = sample_batch(data, 6, 40, torch.Generator().manual_seed(0), bucket=8)
@@ -188,7 +213,9 @@ def test_each_stage_lowers_its_loss(baseline: tuple[Path, BaseModelsInfo]) -> No
         losses = losses_of(out, stage)
         k = max(1, len(losses) // 4)
         assert np.mean(losses[-k:]) < np.mean(losses[:k]), (stage, losses)
-    assert {"prior_test_mse", "encoder_test_loss", "content_classifier_accuracy", "style_classifier_accuracy"} <= set(info.metrics)
+    assert {"prior_test_mse", "encoder_test_loss", "content_classifier_accuracy", "style_classifier_accuracy"} <= set(
+        info.metrics
+    )
     assert info.corpus_fingerprint and info.config_hash == tiny_config().config_hash()
 
 
@@ -198,8 +225,8 @@ def test_interrupted_runs_resume_to_identical_weights(
     out = tmp_path / "resumed"
     for stop_stage, stop_step in (("prior", 17), ("motion_encoder", 13)):
 
-        def stop(stage: str, step: int, total: int, metrics: dict[str, float]) -> None:
-            if (stage, step) == (stop_stage, stop_step):
+        def stop(stage: str, step: int, total: int, metrics: dict[str, float], at=(stop_stage, stop_step)) -> None:
+            if (stage, step) == at:
                 raise Interrupt(f"{stage} {step}")
 
         with pytest.raises(Interrupt):
@@ -233,7 +260,9 @@ def test_base_models_round_trip_gives_identical_outputs(baseline: tuple[Path, Ba
     t = torch.tensor([10, 500])
     torch.testing.assert_close(loaded.prior(x, t, text, mask), again.prior(x, t, text, mask), rtol=0, atol=0)
     torch.testing.assert_close(loaded.motion_encoder(x, mask), again.motion_encoder(x, mask), rtol=0, atol=0)
-    assert torch.equal(loaded.motion_encoder.embed.poseEmbedding.weight, loaded.prior.input_process.poseEmbedding.weight)
+    assert torch.equal(
+        loaded.motion_encoder.embed.poseEmbedding.weight, loaded.prior.input_process.poseEmbedding.weight
+    )
     joints = torch.randn(2, 30, 22, 3)
     assert loaded.content_classifier is not None and loaded.style_classifier is not None
     assert torch.equal(loaded.content_classifier(joints, mask), again.content_classifier(joints, mask))
@@ -261,10 +290,14 @@ def test_ensure_base_models_reuses_a_match_and_retrains_on_corpus_change(
     caption = next((changed / "texts").glob("*.txt"))
     caption.write_text("a person hops on one leg.#a/DET person/NOUN hop/VERB#0.0#0.0\n")
     assert corpus_fingerprint(changed) != corpus_fingerprint(corpus)
-    ensure_base_models(changed, out, "tiny", config=tiny_config(), progress=lambda *a: calls.append(a[0]), text_encoder=text_encoder)
+    ensure_base_models(
+        changed, out, "tiny", config=tiny_config(), progress=lambda *a: calls.append(a[0]), text_encoder=text_encoder
+    )
     assert "prior" in calls
     assert "made from another corpus or pre-training config; pre-training again" in caplog.text
-    assert BaseModelsInfo.model_validate_json((out / "base.json").read_text()).corpus_fingerprint == corpus_fingerprint(changed)
+    assert BaseModelsInfo.model_validate_json((out / "base.json").read_text()).corpus_fingerprint == corpus_fingerprint(
+        changed
+    )
 
 
 def test_bad_inputs_are_one_line_errors(tmp_path: Path) -> None:

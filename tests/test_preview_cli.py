@@ -10,16 +10,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from fixtures.evaluation.tiny_run import build_run, make_corpus
 from PIL import Image
 from typer.testing import CliRunner
 
-from augment.bvh import read_bvh
-from augment.corpus import open_corpus
-from augment.rendering import features_to_joints, find_ffmpeg
-from augment.shards import iter_shard_rows, row_motion
-from fixtures.evaluation.tiny_run import build_run, make_corpus
-from schemas.skeleton import T2M
-from workflows.cli import app
+from motionaug.augment.corpus import Corpus
+from motionaug.augment.motion.bvh import read_bvh
+from motionaug.augment.outputs.shards import iter_shard_rows, row_motion
+from motionaug.augment.render.previews import features_to_joints, find_ffmpeg
+from motionaug.schemas.skeleton import T2M
+from motionaug.workflows.cli import app
 
 PANEL_W, PANEL_H = 320, 360  # render_panels_gif's default panel size
 
@@ -47,7 +47,7 @@ def frames_of(path: Path) -> list[np.ndarray]:
 
 
 def shortest_clip(corpus: Path):
-    return min(open_corpus(corpus), key=lambda c: c.n_frames)
+    return min(Corpus(corpus), key=lambda c: c.n_frames)
 
 
 def test_preview_of_a_transfer_is_side_by_side_at_the_clip_length(tiny, tmp_path: Path) -> None:
@@ -66,7 +66,9 @@ def test_preview_of_a_transfer_is_side_by_side_at_the_clip_length(tiny, tmp_path
     assert (left != right).mean() > 0.002  # the stylized pose is not the content pose
 
 
-def test_preview_of_a_corpus_clip_and_default_output_name(tiny, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_preview_of_a_corpus_clip_and_default_output_name(
+    tiny, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     clip = shortest_clip(tiny["corpus"])
     monkeypatch.chdir(tmp_path)
     result = invoke("preview", tiny["corpus"], "--clip", clip.id)
@@ -80,7 +82,10 @@ def test_grid_is_one_png_contact_sheet_of_n_transfers(tiny, tmp_path: Path) -> N
     result = invoke("preview", tiny["run"], "--grid", 3, "--seed", 1, "--out", out)
     assert result.exit_code == 0, result.output
     with Image.open(out) as image:
-        assert image.format == "PNG" and image.size == (200 + 6 * 110, 3 * 2 * 150)  # label + 6 key poses; 3 rows x 2 strips
+        assert image.format == "PNG" and image.size == (
+            200 + 6 * 110,
+            3 * 2 * 150,
+        )  # label + 6 key poses; 3 rows x 2 strips
     again = tmp_path / "again.png"
     invoke("preview", tiny["run"], "--grid", 3, "--seed", 1, "--out", again)
     assert again.read_bytes() == out.read_bytes()  # seeded choice

@@ -12,9 +12,8 @@ import pytest
 import torch
 from PIL import Image
 
-from augment.clip import MotionClip
-from schemas.errors import MotionDataError
-from augment.rendering import (
+from motionaug.augment.corpus.clip import MotionClip
+from motionaug.augment.render.previews import (
     STYLIZED_COLOR,
     Camera,
     Panel,
@@ -25,7 +24,8 @@ from augment.rendering import (
     render_contact_sheet,
     render_panels_gif,
 )
-from schemas.captions import Caption
+from motionaug.schemas.captions import Caption
+from motionaug.schemas.errors import MotionDataError
 
 torch.set_num_threads(1)
 FIXTURES = Path(__file__).resolve().parent / "fixtures" / "humanml3d"
@@ -145,10 +145,12 @@ def test_figure_is_upright_and_not_mirrored(joints: np.ndarray, tmp_path: Path) 
     assert feet_row - head_row > 60  # head on top, well above the feet
 
 
-def test_mp4_without_ffmpeg_is_a_clear_error(joints: np.ndarray, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import augment.rendering
+def test_mp4_without_ffmpeg_is_a_clear_error(
+    joints: np.ndarray, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import motionaug.augment.render.previews as previews
 
-    monkeypatch.setattr(augment.rendering, "find_ffmpeg", lambda: None)
+    monkeypatch.setattr(previews, "find_ffmpeg", lambda: None)
     with pytest.raises(MotionDataError, match="ffmpeg"):
         render_panels_gif([Panel(joints[:5], "x")], tmp_path / "a.mp4", size=SMALL)
     assert not (tmp_path / "a.mp4").exists()
@@ -182,9 +184,12 @@ def test_bad_inputs_raise_motion_data_error(joints: np.ndarray, tmp_path: Path) 
 
 def test_contact_sheet_size_and_rows(joints: np.ndarray, tmp_path: Path) -> None:
     rows = [
-        SheetRow("proud | 012314 | a person walks", [Panel(joints[:60], "content"), Panel(joints[60:120], "stylized", STYLIZED_COLOR)]),
+        SheetRow(
+            "proud | 012314 | a person walks",
+            [Panel(joints[:60], "content"), Panel(joints[60:120], "stylized", STYLIZED_COLOR)],
+        ),
         SheetRow("old | 012314", [Panel(joints[100:170], "content")]),
-    ]  # fmt: skip
+    ]
     cell, label_width, n = (80, 110), 150, 4
     out = render_contact_sheet(rows, tmp_path / "sheet.png", n_keyposes=n, cell_size=cell, label_width=label_width)
     image = np.asarray(Image.open(out).convert("RGB"))
@@ -225,5 +230,5 @@ def test_preview_clip_and_pair_from_features(features: np.ndarray, tmp_path: Pat
 
 
 def test_import_leaves_pyplot_alone() -> None:
-    code = "import sys, augment.rendering; sys.exit('matplotlib.pyplot' in sys.modules)"
+    code = "import sys, motionaug.augment.render.previews; sys.exit('matplotlib.pyplot' in sys.modules)"
     assert subprocess.run([sys.executable, "-c", code], cwd=REPO).returncode == 0

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from augment import rotations as R
+from motionaug.augment.motion import rotations as R
 
 torch.set_num_threads(1)
 ORDERS = ["xyz", "xzy", "yxz", "yzx", "zxy", "zyx"]
@@ -113,7 +113,9 @@ def test_euler_is_intrinsic_and_round_trips(order: str) -> None:
     q = R.euler_to_quat(torch.as_tensor(angles), order)
     np.testing.assert_allclose(R.quat_to_matrix(q).numpy(), expected, atol=1e-12)
     gen = torch.Generator().manual_seed(7)
-    many = (torch.rand(100, 3, generator=gen, dtype=torch.float64) - 0.5) * torch.tensor([6.0, 3.0, 6.0], dtype=torch.float64)
+    many = (torch.rand(100, 3, generator=gen, dtype=torch.float64) - 0.5) * torch.tensor(
+        [6.0, 3.0, 6.0], dtype=torch.float64
+    )
     back = R.quat_to_euler(R.euler_to_quat(many, order), order)
     torch.testing.assert_close(back, many)
     degrees = R.euler_to_quat(torch.rad2deg(many), order.upper(), degrees=True)
@@ -125,7 +127,9 @@ def test_euler_matches_scipy_intrinsic() -> None:
     angles = np.array([[10.0, -35.0, 80.0], [170.0, 20.0, -100.0]])
     for order in ORDERS:
         ours = R.quat_to_matrix(R.euler_to_quat(torch.as_tensor(angles), order, degrees=True)).numpy()
-        np.testing.assert_allclose(ours, rotation.from_euler(order.upper(), angles, degrees=True).as_matrix(), atol=1e-12)
+        np.testing.assert_allclose(
+            ours, rotation.from_euler(order.upper(), angles, degrees=True).as_matrix(), atol=1e-12
+        )
 
 
 def test_euler_rejects_bad_order() -> None:
@@ -143,8 +147,10 @@ def test_axis_angle_round_trip_and_small_angles() -> None:
     torch.testing.assert_close(q.norm(dim=-1), torch.ones(100, dtype=torch.float64))
     torch.testing.assert_close(R.quat_to_axis_angle(q), aa)
     axis = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
-    torch.testing.assert_close(R.qrot(R.axis_angle_to_quat(axis * math.pi / 2), torch.tensor([1.0, 0, 0], dtype=torch.float64)),
-                               torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64))
+    torch.testing.assert_close(
+        R.qrot(R.axis_angle_to_quat(axis * math.pi / 2), torch.tensor([1.0, 0, 0], dtype=torch.float64)),
+        torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64),
+    )
     tiny = torch.tensor([[1e-9, 0.0, 0.0], [0.0, 0.0, 0.0]], dtype=torch.float64)
     assert torch.isfinite(R.axis_angle_to_quat(tiny)).all()
     assert torch.isfinite(R.quat_to_axis_angle(R.axis_angle_to_quat(tiny))).all()

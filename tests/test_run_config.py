@@ -8,12 +8,13 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
-from schemas.run_config import RunConfig, apply_overrides, load_run_config, parse_override
+from motionaug.schemas.run_config import RunConfig, apply_overrides, load_run_config, parse_override
 
 STYLE = {
-    "name": "proud", "words": {"adjective": "proud", "adverb": "proudly"},
+    "name": "proud",
+    "words": {"adjective": "proud", "adverb": "proudly"},
     "examples": [{"source": "examples/proud.npy", "description": "a person walks proudly"}],
-}  # fmt: skip
+}
 
 
 def base() -> dict:
@@ -77,10 +78,14 @@ def test_top_level_must_be_a_mapping(tmp_path: Path) -> None:
 
 
 def test_every_shipped_config_loads_and_its_method_params_validate() -> None:
-    from augment.methods.registry import validate_method_params
+    from motionaug.augment.methods.registry import validate_method_params
 
     configs = sorted((Path(__file__).parents[1] / "configs").glob("*.yaml"))
-    assert {p.name for p in configs} >= {"onthefly-humanml3d.yaml", "onthefly-lora-synthetic.yaml", "stats-synthetic.yaml"}
+    assert {p.name for p in configs} >= {
+        "onthefly-humanml3d.yaml",
+        "onthefly-lora-synthetic.yaml",
+        "stats-synthetic.yaml",
+    }
     for path in configs:
         config = load_run_config(path)
         params = validate_method_params(config.method.name, config.method.params)

@@ -1,6 +1,6 @@
 import pytest
 
-from schemas.skeleton import KIT, T2M, Skeleton, get_skeleton
+from motionaug.schemas.skeleton import KIT, T2M, Skeleton, get_skeleton
 
 
 def test_t2m_layout() -> None:
@@ -20,8 +20,14 @@ def test_mirror_permutation_is_an_involution() -> None:
 def test_bad_skeleton_is_rejected() -> None:
     with pytest.raises(ValueError, match="offsets"):
         Skeleton(
-            name="bad", joint_names=["a", "b"], kinematic_chain=[[0, 1]], raw_offsets=[(0, 0, 0)],
-            feet_left=(0, 1), feet_right=(0, 1), face_joints=(0, 1, 0, 1), leg_joints=(0, 1),
+            name="bad",
+            joint_names=["a", "b"],
+            kinematic_chain=[[0, 1]],
+            raw_offsets=[(0, 0, 0)],
+            feet_left=(0, 1),
+            feet_right=(0, 1),
+            face_joints=(0, 1, 0, 1),
+            leg_joints=(0, 1),
         )
     with pytest.raises(ValueError, match="unknown skeleton"):
         get_skeleton("nope")

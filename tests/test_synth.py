@@ -8,15 +8,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from conftest import FIXTURES
 from pydantic import ValidationError
 
-from augment.corpus.tokens import UPOS_TAGS
-from schemas.errors import MotionDataError
-from augment.synth import CONTENTS, STYLE_WORDS, STYLES, ClipSpec, render, sample_spec
-from augment.synth.animator import BONE_LENGTHS, FOOT_JOINTS, PARENTS
-from augment.synth.captions import LEXICON, make_captions
-from augment.synth.contents import L_FOOT, R_FOOT
-from augment.synth.corpus import (
+from motionaug.augment.synth import CONTENTS, STYLE_WORDS, STYLES, ClipSpec, render, sample_spec
+from motionaug.augment.synth.animator import BONE_LENGTHS, FOOT_JOINTS, PARENTS
+from motionaug.augment.synth.captions import LEXICON, make_captions
+from motionaug.augment.synth.contents import L_FOOT, R_FOOT
+from motionaug.augment.synth.corpus import (
     assign_splits,
     generate_corpus,
     linear_probe_predict,
@@ -25,11 +24,9 @@ from augment.synth.corpus import (
     read_labels,
     spec_to_clip,
 )
-from augment.synth.styles import style_params
-from conftest import require_shared
-
-
-
+from motionaug.augment.synth.styles import style_params
+from motionaug.augment.text.tokens import UPOS_TAGS
+from motionaug.schemas.errors import MotionDataError
 
 
 @pytest.fixture
@@ -72,7 +69,7 @@ def test_every_content_renders_in_every_style(content: str) -> None:
 
 
 def test_bone_lengths_come_from_the_reference_skeleton() -> None:
-    ref = np.load(require_shared("humanml3d_sample", "joints", "000021.npy"))[0, :22]
+    ref = np.load(FIXTURES / "humanml3d" / "joints" / "000021.npy")[0, :22]
     lengths = np.array([np.linalg.norm(ref[j] - ref[PARENTS[j]]) for j in range(1, 22)])
     pairs = [(1, 2), (4, 5), (7, 8), (10, 11), (13, 14), (16, 17), (18, 19), (20, 21)]
     for a, b in pairs:
@@ -158,8 +155,23 @@ def test_captions_have_valid_tokens_and_name_the_style() -> None:
         s: {w.adjective, *(w.adverb or "").split(), *(t for p in w.phrases for t in p.split())}
         for s, w in STYLE_WORDS.items()
     }
-    all_style_words = {"proud", "proudly", "depressed", "sadly", "old", "elderly", "childlike", "playfully",
-                       "angry", "angrily", "strutting", "strut", "swagger", "sneaky", "sneakily"}  # fmt: skip
+    all_style_words = {
+        "proud",
+        "proudly",
+        "depressed",
+        "sadly",
+        "old",
+        "elderly",
+        "childlike",
+        "playfully",
+        "angry",
+        "angrily",
+        "strutting",
+        "strut",
+        "swagger",
+        "sneaky",
+        "sneakily",
+    }
     for i in range(240):
         content, style = sorted(CONTENTS)[i % len(CONTENTS)], sorted(STYLES)[i % len(STYLES)]
         s = sample_spec(rng, content, style)

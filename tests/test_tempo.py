@@ -1,4 +1,4 @@
-"""Tempo (augment.tempo): measuring a motion's cycle, a style's tempo from its examples, retiming clips and captions.
+"""Tempo (augment.motion.tempo): a motion's cycle, a style's tempo from its examples, retiming clips and captions.
 
 Synthetic clips rendered with a known clock give the ground truth: the animator's phase rate is the content's
 cycle rate times the style's ``tempo``, so the measured ratio must come back as that number.
@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 import torch
 
-from augment.evaluation_inputs import features_to_joints
-from augment.features import extract_features, feature_slices
-from augment.synth import render, sample_spec
-from augment.synth.styles import NEUTRAL, STYLES
-from augment.tempo import cycle_period, retime, retime_captions, retimed_length, style_tempo
-from schemas.captions import Caption
-from schemas.skeleton import T2M
+from motionaug.augment.eval.inputs import features_to_joints
+from motionaug.augment.motion.features import extract_features, feature_slices
+from motionaug.augment.motion.tempo import cycle_period, retime, retime_captions, retimed_length, style_tempo
+from motionaug.augment.synth import render, sample_spec
+from motionaug.augment.synth.styles import NEUTRAL, STYLES
+from motionaug.schemas.captions import Caption
+from motionaug.schemas.skeleton import T2M
 
 FPS = 20.0
 

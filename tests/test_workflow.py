@@ -20,14 +20,14 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 import yaml
+from conftest import TWO_STYLES
 from typer.testing import CliRunner
 
-from augment.corpus import read_rejects
-from augment.shards import sha256_file
-from schemas.run_config import RunConfig, load_run_config
-from schemas.shards import Manifest
-from workflows.cli import app
-from conftest import TWO_STYLES
+from motionaug.augment.corpus import read_rejects
+from motionaug.augment.outputs.checksums import sha256_file
+from motionaug.schemas.run_config import RunConfig, load_run_config
+from motionaug.schemas.shards import Manifest
+from motionaug.workflows.cli import app
 
 REPO = Path(__file__).resolve().parents[1]
 N_CLIPS = 40
@@ -37,9 +37,13 @@ STYLES = TWO_STYLES
 
 def config_dict(corpus: Path, output: Path, **compute: object) -> dict:
     return {
-        "corpus": {"path": str(corpus)}, "styles": copy.deepcopy(STYLES), "method": {"name": "stats"},
-        "compute": {"num_cpus": 2, "batch_size": 3, "unit_size": UNIT_SIZE, **compute}, "output": str(output), "seed": 0,
-    }  # fmt: skip
+        "corpus": {"path": str(corpus)},
+        "styles": copy.deepcopy(STYLES),
+        "method": {"name": "stats"},
+        "compute": {"num_cpus": 2, "batch_size": 3, "unit_size": UNIT_SIZE, **compute},
+        "output": str(output),
+        "seed": 0,
+    }
 
 
 def write_config(path: Path, data: dict) -> Path:
@@ -59,7 +63,7 @@ def ray_cluster():
 
 @pytest.fixture(scope="module")
 def corpus(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from augment.synth import generate_corpus
+    from motionaug.augment.synth import generate_corpus
 
     root = tmp_path_factory.mktemp("corpus") / "synth"
     generate_corpus(root, N_CLIPS, seed=0)
@@ -68,7 +72,7 @@ def corpus(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="module")
 def finished_run(ray_cluster: str, corpus: Path, tmp_path_factory: pytest.TempPathFactory):
-    from workflows.ray_executor import execute_run
+    from motionaug.workflows.ray_executor import execute_run
 
     out = tmp_path_factory.mktemp("runs") / "full"
     config = load_run_config(None, data=config_dict(corpus, out))
@@ -112,22 +116,27 @@ def test_end_to_end_shards_manifest_and_success(finished_run) -> None:
 
 
 def test_rerun_skips_everything_and_keeps_rows(finished_run) -> None:
-    from workflows.ray_executor import execute_run
+    from motionaug.workflows.ray_executor import execute_run
 
     config, _ = finished_run
     before = shard_rows(config.output)
     summary = execute_run(config)
-    assert summary.skipped == {"finetune": 2, "transfer": N_CLIPS // UNIT_SIZE * 2}
+    assert summary.skipped == {"prepare": 2, "transfer": N_CLIPS // UNIT_SIZE * 2}
     assert shard_rows(config.output) == before
 
 
-def test_resume_after_sigkill_gives_the_uninterrupted_rows(finished_run, ray_cluster: str, corpus: Path, tmp_path: Path) -> None:
+@pytest.mark.slow
+def test_resume_after_sigkill_gives_the_uninterrupted_rows(
+    finished_run, ray_cluster: str, corpus: Path, tmp_path: Path
+) -> None:
     config, _ = finished_run
     out = tmp_path / "killed"
     cfg = write_config(tmp_path / "run.yaml", config_dict(corpus, out))
-    cmd = [sys.executable, "-m", "workflows.cli", "run", str(cfg), "--address", ray_cluster]
+    cmd = [sys.executable, "-m", "motionaug.workflows.cli", "run", str(cfg), "--address", ray_cluster]
     env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0"}
-    proc = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    proc = subprocess.Popen(
+        cmd, cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
+    )
     total = N_CLIPS // UNIT_SIZE * len(STYLES)
     deadline = time.monotonic() + 90
     while not list(out.glob("shards/style=*/*.done")) and time.monotonic() < deadline and proc.poll() is None:
@@ -148,7 +157,7 @@ def test_resume_after_sigkill_gives_the_uninterrupted_rows(finished_run, ray_clu
 def test_bad_clip_lands_in_rejects_and_the_rest_is_written(ray_cluster: str, corpus: Path, tmp_path: Path) -> None:
     import shutil
 
-    from workflows.ray_executor import execute_run
+    from motionaug.workflows.ray_executor import execute_run
 
     bad = tmp_path / "corpus"
     shutil.copytree(corpus, bad)
@@ -165,7 +174,7 @@ def test_bad_clip_lands_in_rejects_and_the_rest_is_written(ray_cluster: str, cor
 
 
 def test_fan_out_k_styles_per_clip(ray_cluster: str, corpus: Path, tmp_path: Path) -> None:
-    from workflows.ray_executor import execute_run
+    from motionaug.workflows.ray_executor import execute_run
 
     data = {**config_dict(corpus, tmp_path / "run", unit_size=20), "fan_out": {"per_clip": 1, "seed": 3}}
     summary = execute_run(load_run_config(None, data=data))
@@ -185,16 +194,20 @@ def test_other_config_in_the_same_folder_is_refused(finished_run, corpus: Path, 
 @pytest.mark.parametrize(
     ("change", "expected"),
     [
-        (lambda d: d["styles"][0]["examples"].__setitem__(0, {"source": "nope.npy", "description": "walks proudly"}),
-         "nope.npy not found"),
+        (
+            lambda d: d["styles"][0]["examples"].__setitem__(0, {"source": "nope.npy", "description": "walks proudly"}),
+            "nope.npy not found",
+        ),
         (lambda d: d["corpus"].__setitem__("path", "/no/such/corpus"), "corpus.path"),
         (lambda d: d["compute"].__setitem__("batch_size", -4), "batch_size"),
         (lambda d: d["compute"].__setitem__("unit_size", 0), "unit_size"),
         (lambda d: d.__setitem__("method", {"name": "stats", "params": {"strength": 3}}), "method.params"),
         (lambda d: d.__setitem__("method", {"name": "nope"}), "unknown method"),
         (lambda d: d.__setitem__("colour", "red"), "colour"),
-        (lambda d: d.update(method={"name": "onthefly"}, base_models={"pretrain": {"prior_steps": -1}}),
-         "base_models.pretrain.prior_steps"),
+        (
+            lambda d: d.update(method={"name": "onthefly"}, base_models={"pretrain": {"prior_steps": -1}}),
+            "base_models.pretrain.prior_steps",
+        ),
     ],
 )
 def test_config_errors_exit_2_with_one_line(change, expected: str, corpus: Path, tmp_path: Path) -> None:
@@ -208,7 +221,10 @@ def test_config_errors_exit_2_with_one_line(change, expected: str, corpus: Path,
 
 
 def test_diffusion_k_greater_than_t_is_a_config_error(corpus: Path, tmp_path: Path) -> None:
-    data = {**config_dict(corpus, tmp_path / "run"), "method": {"name": "onthefly", "params": {"transfer_noise_step": 5000}}}
+    data = {
+        **config_dict(corpus, tmp_path / "run"),
+        "method": {"name": "onthefly", "params": {"transfer_noise_step": 5000}},
+    }
     result = CliRunner().invoke(app, ["run", str(write_config(tmp_path / "c.yaml", data))])
     assert result.exit_code == 2 and "method.params" in result.output
 
@@ -230,9 +246,9 @@ def test_run_id_ignores_where_but_not_what(corpus: Path, tmp_path: Path) -> None
 
 
 def test_force_starts_over_and_foreign_folders_are_left_alone(corpus: Path, tmp_path: Path) -> None:
-    from schemas.errors import MotionDataError
-    from workflows.pipeline import write_resolved_config
-    from workflows.ray_executor import prepare_run_dir
+    from motionaug.schemas.errors import MotionDataError
+    from motionaug.workflows.pipeline import write_resolved_config
+    from motionaug.workflows.ray_executor import prepare_run_dir
 
     old = load_run_config(None, data={**config_dict(corpus, tmp_path / "run"), "seed": 9})
     write_resolved_config(old)

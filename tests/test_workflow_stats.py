@@ -7,19 +7,27 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from augment.clip import MotionClip
-from augment.corpus.rejects import Reject
-from schemas.errors import MotionDataError
-from augment.methods.base import TransferOutput
-from augment.methods.registry import create_method, known_methods, method_class, needs_base_models, validate_method_params
-from augment.methods.stats_baseline import StatsBaselineMethod, pose_channels
-from schemas.captions import Caption
-from schemas.styles import StyleSpec
+from motionaug.augment.corpus.clip import MotionClip
+from motionaug.augment.corpus.rejects import Reject
+from motionaug.augment.methods.base import TransferOutput
+from motionaug.augment.methods.registry import (
+    create_method,
+    known_methods,
+    method_class,
+    validate_method_params,
+)
+from motionaug.augment.methods.stats_baseline import StatsBaselineMethod, pose_channels
+from motionaug.schemas.captions import Caption
+from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.styles import StyleSpec
 
-STYLE = StyleSpec.model_validate({
-    "name": "proud", "words": {"adjective": "proud", "adverb": "proudly"},
-    "examples": [{"source": "x.npy", "description": "a person walks proudly"}],
-})  # fmt: skip
+STYLE = StyleSpec.model_validate(
+    {
+        "name": "proud",
+        "words": {"adjective": "proud", "adverb": "proudly"},
+        "examples": [{"source": "x.npy", "description": "a person walks proudly"}],
+    }
+)
 
 
 def _clip(clip_id: str, scale: float, offset: float, frames: int = 60, seed: int = 0) -> MotionClip:
@@ -71,12 +79,12 @@ def test_transfer_is_deterministic(model) -> None:
 
 def test_registry_validates_params_and_names_methods() -> None:
     assert {"stats", "onthefly"} <= set(known_methods())
-    assert method_class("stats") is StatsBaselineMethod and not needs_base_models("stats")
+    assert method_class("stats") is StatsBaselineMethod and not StatsBaselineMethod.trains
     assert validate_method_params("stats", {"strength": "0.5"}) == {"strength": 0.5, "n_variants": 1}
-    with pytest.raises(MotionDataError, match=r"method.params: stats: strength 2.0 outside"):
+    with pytest.raises(MotionDataError, match=r"method.params.strength: stats: Input should be less than or equal"):
         validate_method_params("stats", {"strength": 2})
-    with pytest.raises(MotionDataError, match="unknown parameter"):
+    with pytest.raises(MotionDataError, match="method.params.colour: stats: Extra inputs are not permitted"):
         create_method("stats", {"colour": 1})
     with pytest.raises(MotionDataError, match="unknown method 'nope'"):
         method_class("nope")
-    assert create_method("stats", {"strength": 0.25}).strength == 0.25
+    assert create_method("stats", {"strength": 0.25}).params.strength == 0.25

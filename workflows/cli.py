@@ -5,14 +5,11 @@ Errors a user can fix print one line (the thing and the reason): exit 2 for usag
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Literal, TypeVar
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import typer
 from pydantic import ValidationError
-from rich.console import Console
 from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
@@ -24,51 +21,13 @@ from rich.progress import (
 )
 from rich.table import Table
 
-from schemas.errors import MotionDataError, first_error
+from motionaug.schemas.errors import MotionDataError
+from motionaug.workflows import cli_inspect  # noqa: F401  (registers preview and evaluate on the app)
+from motionaug.workflows.cli_app import app, console, corpus_app, err_console, run_safely, usage_errors
 
 if TYPE_CHECKING:
-    from schemas.run_config import RunConfig
-    from workflows.ray_executor import RunSummary
-
-app = typer.Typer(help="Stylistic expansion of text-to-motion datasets.", no_args_is_help=True, add_completion=False)
-corpus_app = typer.Typer(help="Make, import and inspect motion corpora.", no_args_is_help=True)
-app.add_typer(corpus_app, name="corpus")
-
-console = Console()
-err_console = Console(stderr=True, soft_wrap=True)
-T = TypeVar("T")
-
-
-@contextmanager
-def user_errors() -> Iterator[None]:
-    """Turn bad-input errors into one red line and exit code 1 instead of a traceback."""
-    try:
-        yield
-    except (MotionDataError, ValidationError, FileNotFoundError) as err:
-        err_console.print(f"[red]error:[/red] {_one_line(err)}", highlight=False)
-        raise typer.Exit(1) from None
-
-
-@contextmanager
-def usage_errors() -> Iterator[None]:
-    """Like ``user_errors`` for a bad config or argument: one line, exit code 2."""
-    try:
-        yield
-    except (MotionDataError, ValidationError, FileNotFoundError) as err:
-        err_console.print(f"[red]error:[/red] {_one_line(err)}", highlight=False)
-        raise typer.Exit(2) from None
-
-
-def _one_line(err: Exception) -> str:
-    if isinstance(err, ValidationError):
-        where, message = first_error(err, err.title)
-        return f"{err.title}: {where}: {message}"
-    return str(err).splitlines()[0]
-
-
-def run_safely(fn: Callable[[], T]) -> T:
-    with user_errors():
-        return fn()
+    from motionaug.schemas.run_config import RunConfig
+    from motionaug.workflows.ray_executor import RunSummary
 
 
 def _facts(title: str, rows: list[tuple[str, object]]) -> Table:
@@ -90,66 +49,131 @@ def corpus_synth(
     seed: Annotated[int, typer.Option(help="Seed; the same seed gives byte-identical output.")] = 0,
 ) -> None:
     """Render the procedural style corpus (the embedded default) in the HumanML3D layout."""
-    from augment.synth import generate_corpus
+    from motionaug.augment.synth import generate_corpus
 
     with console.status(f"rendering {clips} synthetic clips"):
         summary = run_safely(lambda: generate_corpus(out, clips, seed=seed))
-    console.print(f"wrote {summary.n_clips} clips ({summary.frames} frames) to {summary.out_dir} in {summary.seconds:.1f} s")
+    console.print(
+        f"wrote {summary.n_clips} clips ({summary.frames} frames) to {summary.out_dir} in {summary.seconds:.1f} s"
+    )
 
 
 @corpus_app.command("inspect")
 def corpus_inspect(path: Annotated[Path, typer.Argument(help="A HumanML3D folder or a Parquet corpus.")]) -> None:
     """Count clips, frames, hours, captions, labels and rejects of a corpus."""
-    from augment.corpus import inspect_corpus
+    from motionaug.augment.corpus import inspect_corpus
 
     info = run_safely(lambda: inspect_corpus(path))
-    console.print(_facts(f"{info.path} ({info.format})", [
-        ("clips", info.clips), ("frames", info.frames), ("hours", f"{info.hours:.2f}"), ("captions", info.captions),
-        ("splits", _counts(info.splits)), ("contents", _counts(info.contents)),
-        ("styles", _counts(info.styles)), ("rejects", info.rejects),
-    ]))  # fmt: skip
+    console.print(
+        _facts(
+            f"{info.path} ({info.format})",
+            [
+                ("clips", info.clips),
+                ("frames", info.frames),
+                ("hours", f"{info.hours:.2f}"),
+                ("captions", info.captions),
+                ("splits", _counts(info.splits)),
+                ("contents", _counts(info.contents)),
+                ("styles", _counts(info.styles)),
+                ("rejects", info.rejects),
+            ],
+        )
+    )
 
 
 @corpus_app.command("import-bvh")
 def corpus_import_bvh(
     src: Annotated[Path, typer.Argument(help="A .bvh file or a folder searched recursively.")],
-    out: Annotated[Path, typer.Option(help="Output corpus folder.")],
+    out: Annotated[Path, typer.Option(help="Output corpus folder (new or empty).")],
     fmt: Annotated[Literal["humanml3d", "parquet"], typer.Option("--format", help="Output layout.")] = "humanml3d",
     content: Annotated[str | None, typer.Option(help="Content label for every file (else from names/JSON).")] = None,
     style: Annotated[str | None, typer.Option(help="Style label for every file (else from names/JSON).")] = None,
     joint_map: Annotated[Path | None, typer.Option(help="Joint map JSON/YAML (docs/retargeting.md).")] = None,
+    max_frames: Annotated[
+        int | None, typer.Option(min=10, help="Cut longer takes into equal pieces of at most this many frames (196).")
+    ] = None,
+    val_takes: Annotated[int, typer.Option(min=0, help="Takes per (content, style) pair for val.txt.")] = 0,
+    test_takes: Annotated[int, typer.Option(min=0, help="Takes per (content, style) pair for test.txt.")] = 0,
+    mean_std: Annotated[bool, typer.Option(help="Write Mean.npy/Std.npy from the train split.")] = False,
+    licence: Annotated[str | None, typer.Option(help="The data's licence (Bandai file names imply theirs).")] = None,
+    captions: Annotated[int, typer.Option(min=1, help="Captions per clip.")] = 3,
 ) -> None:
-    """Retarget BVH files to the t2m skeleton at 20 fps and write them as a corpus."""
-    from augment.corpus.import_bvh import import_bvh
+    """Retarget BVH files to the t2m skeleton at 20 fps, caption them from their labels and write a corpus
+    (docs/bandai.md: the Bandai-2 protocol is --max-frames 196 --val-takes 3 --test-takes 3 --mean-std)."""
+    from motionaug.augment.corpus.import_bvh import import_bvh
 
     with console.status(f"importing BVH from {src}"):
-        summary = run_safely(lambda: import_bvh(src, out, fmt, content, style, joint_map))
+        summary = run_safely(
+            lambda: import_bvh(
+                src,
+                out,
+                fmt,
+                content,
+                style,
+                joint_map,
+                max_frames=max_frames,
+                val_takes=val_takes,
+                test_takes=test_takes,
+                mean_std=mean_std,
+                licence=licence,
+                captions=captions,
+            )
+        )
     for reject in summary.rejects:
         err_console.print(f"[yellow]skipped[/yellow] {reject}", highlight=False)
-    console.print(f"wrote {summary.clips} clips ({summary.frames} frames) to {summary.out}; {len(summary.rejects)} rejected")
+    for split, pairs in summary.missing_pairs.items():
+        err_console.print(f"[yellow]warning[/yellow] {split} has no clip of {', '.join(pairs)}", highlight=False)
+    console.print(
+        _facts(
+            f"{summary.out} ({fmt})",
+            [
+                ("takes", summary.takes),
+                ("clips", summary.clips),
+                ("frames", summary.frames),
+                ("cut takes", f"{summary.cut_takes} -> {summary.pieces} clips"),
+                ("too short for MDM", len(summary.too_short)),
+                ("splits", _counts(summary.splits)),
+                ("licence", summary.licence or "-"),
+                ("seconds", f"{summary.seconds:.1f}"),
+            ],
+        )
+    )
+    console.print(
+        f"wrote {summary.clips} clips ({summary.frames} frames) to {summary.out}; {len(summary.rejects)} rejected"
+    )
 
 
 @app.command()
 def demo(
-    out: Annotated[Path, typer.Option(help="Where the demo writes everything; run again to resume.")] = Path("demo-out"),
+    out: Annotated[Path, typer.Option(help="Where the demo writes everything; run again to resume.")] = Path(
+        "demo-out"
+    ),
     clips: Annotated[int, typer.Option(min=40, help="Synthetic clips to render.")] = 1000,
     base_models: Annotated[
         Path | None, typer.Option(help="Base-models folder to reuse or pre-train into (default OUT/base_models).")
     ] = None,
-    method: Annotated[str, typer.Option(help="onthefly (diffusion, the default) or stats (a fast baseline).")] = "onthefly",
-    size: Annotated[str, typer.Option(help="Base-model size: small, or tiny for a smoke run in about a minute.")] = "small",
+    method: Annotated[
+        str, typer.Option(help="onthefly (diffusion, the default) or stats (a fast baseline).")
+    ] = "onthefly",
+    size: Annotated[
+        str, typer.Option(help="Base-model size: small, or tiny for a smoke run in about a minute.")
+    ] = "small",
 ) -> None:
     """The embedded default end to end: synthetic corpus, `small` base models (pre-trained once, then reused),
     three styles learnt from one example each, every neutral clip stylized into Parquet shards, and the expanded
     corpus exported in the HumanML3D layout."""
-    from workflows.demo import run_demo
+    from motionaug.workflows.demo import run_demo
 
     with Progress(*RUN_COLUMNS, console=console) as bars:
         result = run_safely(lambda: run_demo(out, clips, _Bars(bars), base_models, method, size))
     _print_run_summary(result.run)
     e = result.export
-    console.print(f"corpus {result.corpus}; expanded corpus {e.out}: {e.originals} original + {e.stylized} stylized clips")
-    console.print(f"next: motionaug preview {result.run.run_dir} --grid 6   |   motionaug evaluate {result.run.run_dir}")
+    console.print(
+        f"corpus {result.corpus}; expanded corpus {e.out}: {e.originals} original + {e.stylized} stylized clips"
+    )
+    console.print(
+        f"next: motionaug preview {result.run.run_dir} --grid 6   |   motionaug evaluate {result.run.run_dir}"
+    )
 
 
 @app.command()
@@ -160,11 +184,17 @@ def pretrain(
     seed: Annotated[int, typer.Option(help="Training seed.")] = 0,
 ) -> None:
     """Train the base models: the T2M diffusion prior, the motion encoder and the evaluators."""
-    from augment.pretrain import PretrainConfig, ensure_base_models
+    from motionaug.augment.training.pretrain import PretrainConfig, ensure_base_models
 
     config = run_safely(lambda: PretrainConfig.for_size(size, seed=seed))
-    columns = (TextColumn("{task.description:>15}"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[loss]}"),
-               TimeElapsedColumn(), TimeRemainingColumn())  # fmt: skip
+    columns = (
+        TextColumn("{task.description:>15}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("{task.fields[loss]}"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+    )
     with Progress(*columns, console=console) as bars:
         tasks: dict[str, TaskID] = {}
 
@@ -175,14 +205,18 @@ def pretrain(
             bars.update(tasks[stage], completed=step, total=total, loss=loss)
 
         folder = run_safely(lambda: ensure_base_models(corpus, out, size, seed, progress=progress, config=config))
-    from augment.base_models import BaseModels
+    from motionaug.augment.training.base_models import BaseModels
 
     info = BaseModels.load(folder).info
     console.print(_facts(f"base models in {folder}", [(k, f"{v:.4f}") for k, v in sorted(info.metrics.items())]))
 
 
 RUN_COLUMNS = (
-    TextColumn("{task.description:>12}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn()
+    TextColumn("{task.description:>12}"),
+    BarColumn(),
+    MofNCompleteColumn(),
+    TimeElapsedColumn(),
+    TimeRemainingColumn(),
 )
 
 
@@ -206,12 +240,13 @@ def run_command(
     address: Annotated[str | None, typer.Option(help="Ray cluster address (default: an embedded local Ray).")] = None,
     out: Annotated[Path | None, typer.Option(help="Run folder (overrides the config's output).")] = None,
     force: Annotated[bool, typer.Option("--force", help="Delete what the run folder holds and start over.")] = False,
-    overrides: Annotated[list[str] | None, typer.Option("--set", help="Override a config value: key.sub=value.")] = None,
+    overrides: Annotated[
+        list[str] | None, typer.Option("--set", help="Override a config value: key.sub=value.")
+    ] = None,
 ) -> None:
     """Fine-tune every style and stylize the corpus into Parquet shards; re-running resumes."""
-    from workflows.ray_executor import execute_run
-
-    from workflows.pipeline import check_config
+    from motionaug.workflows.pipeline import check_config
+    from motionaug.workflows.ray_executor import execute_run
 
     with usage_errors():
         cfg = _load_config(config, overrides or [], address, out)
@@ -221,7 +256,7 @@ def run_command(
     _print_run_summary(summary)
 
 
-def _print_run_summary(summary: "RunSummary") -> None:
+def _print_run_summary(summary: RunSummary) -> None:
     table = Table(title=f"run {summary.run_id}")
     for column in ("stage", "tasks", "skipped", "seconds"):
         table.add_column(column, justify="right" if column != "stage" else "left")
@@ -235,8 +270,8 @@ def _print_run_summary(summary: "RunSummary") -> None:
     )
 
 
-def _load_config(path: Path, overrides: list[str], address: str | None, out: Path | None) -> "RunConfig":
-    from schemas.run_config import load_run_config
+def _load_config(path: Path, overrides: list[str], address: str | None, out: Path | None) -> RunConfig:
+    from motionaug.schemas.run_config import load_run_config
 
     if not path.is_file():
         raise MotionDataError(str(path), "config file not found")
@@ -260,11 +295,11 @@ def status_command(
     address: Annotated[str | None, typer.Option(help="Dashboard URL (http://HEAD:8265): RUN is a job id.")] = None,
 ) -> None:
     """Stages done, shards done/total and rows of a run; with --address also the job's state on the cluster."""
-    from workflows.pipeline import run_status
+    from motionaug.workflows.pipeline import run_status
 
     run_dir: Path | None = Path(run)
     if address is not None:
-        from workflows.jobs import job_state
+        from motionaug.workflows.jobs import job_state
 
         job = run_safely(lambda: job_state(address, run))
         console.print(f"job {job.job_id}: {job.status}" + (f" ({job.message})" if job.message else ""), highlight=False)
@@ -273,11 +308,19 @@ def status_command(
             console.print("run folder not reachable from here; progress shows on the cluster's storage")
             return
     st = run_safely(lambda: run_status(run_dir))
-    console.print(_facts(f"{st.run_dir} ({st.run_id})", [
-        ("plan", f"{st.clips} clips" if st.planned else "not yet"), ("fine-tunes", f"{st.styles_done}/{st.styles_total}"),
-        ("shards", f"{st.shards_done}/{st.shards_total}"), ("rows", st.rows), ("rejects", st.rejects),
-        ("complete", "yes" if st.complete else "no"),
-    ]))  # fmt: skip
+    console.print(
+        _facts(
+            f"{st.run_dir} ({st.run_id})",
+            [
+                ("plan", f"{st.clips} clips" if st.planned else "not yet"),
+                ("fine-tunes", f"{st.styles_done}/{st.styles_total}"),
+                ("shards", f"{st.shards_done}/{st.shards_total}"),
+                ("rows", st.rows),
+                ("rejects", st.rejects),
+                ("complete", "yes" if st.complete else "no"),
+            ],
+        )
+    )
 
 
 @app.command("submit")
@@ -285,16 +328,20 @@ def submit_command(
     config: Annotated[Path, typer.Argument(help="Run config (YAML or JSON); its paths must exist on the cluster.")],
     address: Annotated[str, typer.Option(help="Dashboard URL of the cluster, e.g. http://HEAD:8265.")],
     out: Annotated[Path | None, typer.Option(help="Run folder on the cluster (overrides the config's output).")] = None,
-    overrides: Annotated[list[str] | None, typer.Option("--set", help="Override a config value: key.sub=value.")] = None,
-    retry: Annotated[bool, typer.Option("--retry", help="Resubmit a FAILED/STOPPED run as <job id>-<n>; it resumes.")] = False,
+    overrides: Annotated[
+        list[str] | None, typer.Option("--set", help="Override a config value: key.sub=value.")
+    ] = None,
+    retry: Annotated[
+        bool, typer.Option("--retry", help="Resubmit a FAILED/STOPPED run as <job id>-<n>; it resumes.")
+    ] = False,
     cluster_paths: Annotated[
         bool, typer.Option("--cluster-paths", help="Paths exist only on the cluster: check method params, not files.")
     ] = False,
 ) -> None:
     """Submit the run to a Ray cluster through the Jobs API; the job id is motionaug-<run id>."""
-    from augment.methods.registry import validate_method_params
-    from workflows.jobs import submit_run
-    from workflows.pipeline import check_config
+    from motionaug.augment.methods.registry import validate_method_params
+    from motionaug.workflows.jobs import submit_run
+    from motionaug.workflows.pipeline import check_config
 
     with usage_errors():
         cfg = _load_config(config, overrides or [], None, out)
@@ -315,7 +362,7 @@ def logs_command(
     follow: Annotated[bool, typer.Option("--follow", "-f", help="Stream until the job ends.")] = False,
 ) -> None:
     """Print the job driver's log (stdout and stderr of `motionaug run` on the cluster)."""
-    from workflows.jobs import follow_logs, job_logs
+    from motionaug.workflows.jobs import follow_logs, job_logs
 
     if follow:
         run_safely(lambda: follow_logs(address, job, lambda chunk: print(chunk, end="", flush=True)))
@@ -329,7 +376,7 @@ def cancel_command(
     address: Annotated[str, typer.Option(help="Dashboard URL of the cluster.")],
 ) -> None:
     """Stop a submitted run; finished shards stay on disk and `submit --retry` resumes it."""
-    from workflows.jobs import cancel_job, job_id_for
+    from motionaug.workflows.jobs import cancel_job, job_id_for
 
     stopped = run_safely(lambda: cancel_job(address, job))
     verb = "stop requested for" if stopped else "already finished:"
@@ -340,25 +387,33 @@ def cancel_command(
 def export_command(
     run: Annotated[Path, typer.Argument(help="A finished run folder.")],
     out: Annotated[Path, typer.Option(help="Output folder.")],
-    fmt: Annotated[Literal["humanml3d", "parquet", "bvh"], typer.Option("--format", help="Output layout.")] = "humanml3d",
+    fmt: Annotated[
+        Literal["humanml3d", "parquet", "bvh"], typer.Option("--format", help="Output layout.")
+    ] = "humanml3d",
     min_content_score: Annotated[float | None, typer.Option(help="Keep stylized clips scoring at least this.")] = None,
     keep_mean_std: Annotated[bool, typer.Option("--keep-mean-std", help="Keep the source Mean/Std.")] = False,
     style: Annotated[str | None, typer.Option(help="--format bvh: only this style.")] = None,
 ) -> None:
-    """Original corpus + stylized train clips as a HumanML3D folder or one merged Parquet dataset; bvh: stylized clips as BVH."""
-    from augment.export import export_run
+    """Original corpus + stylized train clips as a HumanML3D folder or one merged Parquet dataset.
+
+    ``--format bvh``: the stylized clips as BVH files.
+    """
+    from motionaug.augment.outputs.export import export_run
 
     if fmt == "bvh":
-        from augment.bvh_export import export_bvh
+        from motionaug.augment.motion.bvh_export import export_bvh
 
         b = run_safely(lambda: export_bvh(run, out, style))
-        console.print(f"wrote {b.files} BVH files to {b.out} ({b.with_positions} non-rigid, with position channels); "
-                      f"largest joint error {b.max_error_m * 1000:.3f} mm")
+        console.print(
+            f"wrote {b.files} BVH files to {b.out} ({b.with_positions} non-rigid, with position channels); "
+            f"largest joint error {b.max_error_m * 1000:.3f} mm"
+        )
         return
     with console.status(f"exporting {run} to {out}"):
         s = run_safely(lambda: export_run(run, out, fmt, min_content_score, keep_mean_std))
     console.print(
-        f"wrote {s.originals} original + {s.stylized} stylized clips to {s.out} ({s.format}); splits {_counts(s.splits)}; "
+        f"wrote {s.originals} original + {s.stylized} stylized clips to {s.out} ({s.format}); "
+        f"splits {_counts(s.splits)}; "
         f"left out: {s.held_out} copies of val/test clips, {s.below_score} below the score"
     )
 
@@ -367,11 +422,5 @@ def main() -> None:  # pragma: no cover - console script entry
     app()
 
 
-if __name__ == "__main__":  # pragma: no cover - ``python -m workflows.cli``
-    # Run as a script this module is ``__main__``; the package's ``app`` is the one commands register on.
-    from workflows.cli import app as registered_app
-
-    registered_app()
-else:
-    import workflows.cli_inspect  # noqa: E402,F401  (registers preview/evaluate on app)
-
+if __name__ == "__main__":  # pragma: no cover - ``python -m motionaug.workflows.cli``
+    app()

@@ -1,7 +1,7 @@
 """``motionaug preview`` and ``motionaug evaluate``: looking at and judging a run's output.
 
-Registered on the app of ``workflows.cli`` (which imports this module at its end). Thin commands:
-parse, call one library function (``augment.evaluation``, ``augment.report``), print where things went.
+Registered on the app of ``workflows.cli_app`` (``workflows.cli`` imports this module). Thin commands:
+parse, call one library function (``augment.eval.evaluation``, ``augment.eval.report``), print where things went.
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from schemas.errors import MotionDataError
-from workflows.cli import app, console, run_safely, usage_errors
+from motionaug.schemas.errors import MotionDataError
+from motionaug.workflows.cli_app import app, console, run_safely, usage_errors
 
 
 @app.command("preview")
@@ -26,14 +26,15 @@ def preview_command(
     seed: Annotated[int, typer.Option(help="Seed for --grid's choice of clips.")] = 0,
 ) -> None:
     """Animate a clip beside its stylized version (a run), or one clip of a corpus; --grid: a PNG contact sheet."""
-    from augment.evaluation import is_run_dir, preview_corpus, preview_grid, preview_transfer
+    from motionaug.augment.eval.evaluation import preview_corpus, preview_grid, preview_transfer
+    from motionaug.augment.outputs.run_dir import RunDir
 
     with usage_errors():
-        _check_preview_args(path, clip, style, grid, is_run_dir(path))
+        _check_preview_args(path, clip, style, grid, RunDir(path).is_run())
     with console.status("rendering preview"):
         if grid is not None:
             written = run_safely(lambda: preview_grid(path, grid, out, seed=seed))
-        elif is_run_dir(path):
+        elif RunDir(path).is_run():
             written = run_safely(lambda: preview_transfer(path, clip, style, out))
         else:
             written = run_safely(lambda: preview_corpus(path, clip, out))
@@ -58,18 +59,26 @@ def _check_preview_args(path: Path, clip: str | None, style: str | None, grid: i
 @app.command("evaluate")
 def evaluate_command(
     run: Annotated[Path, typer.Argument(help="A finished run folder.")],
-    reference: Annotated[Path | None, typer.Option(help="Corpus of real labelled clips for FMD (default: the run's corpus).")] = None,
-    base_models: Annotated[Path | None, typer.Option(help="Base models with the evaluation classifiers (default: the run's).")] = None,
+    reference: Annotated[
+        Path | None, typer.Option(help="Corpus of real labelled clips for FMD (default: the run's corpus).")
+    ] = None,
+    base_models: Annotated[
+        Path | None, typer.Option(help="Base models with the evaluation classifiers (default: the run's).")
+    ] = None,
 ) -> None:
     """Score every stylized clip; write report.md, report.html and scores.parquet into the run folder."""
-    from augment.evaluation import evaluate_run, write_scores
-    from augment.report import SUMMARY_COLUMNS, format_value, write_report
+    from motionaug.augment.eval.evaluation import evaluate_run, write_scores
+    from motionaug.augment.eval.report import SUMMARY_COLUMNS, format_value, write_report
 
     with console.status(f"evaluating {run}"):
         evaluation = run_safely(lambda: evaluate_run(run, reference, base_models))
         scores = run_safely(lambda: write_scores(evaluation))
         md, page = run_safely(lambda: write_report(evaluation))
-    shown = [c for c in SUMMARY_COLUMNS if c[0] in ("clips", "sra", "cra", "fmd", "foot_skating", "contact_agreement", "mpjpe")]
+    shown = [
+        c
+        for c in SUMMARY_COLUMNS
+        if c[0] in ("clips", "sra", "cra", "fmd", "foot_skating", "contact_agreement", "mpjpe")
+    ]
     table = Table(title=f"run {evaluation.run_id} ({evaluation.method})")
     for header in ("style", *[h for _, h, _ in shown]):
         table.add_column(header, justify="left" if header == "style" else "right")

@@ -13,15 +13,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from augment.corpus.humanml3d import read_labels
-from augment.corpus.tokens import parse_caption_line
-from augment.export import ExportSummary, export_run
-from augment.io import atomic_write_text
-from augment.synth import STYLE_WORDS, generate_corpus
-from schemas.errors import MotionDataError
-from schemas.run_config import RunConfig
-from schemas.styles import StyleExample, StyleSpec
-from workflows.ray_executor import RunProgress, RunSummary, execute_run
+from motionaug.augment.corpus.humanml3d import read_labels
+from motionaug.augment.io import atomic_write_text
+from motionaug.augment.outputs.export import ExportSummary, export_run
+from motionaug.augment.synth import STYLE_WORDS, generate_corpus
+from motionaug.augment.text.tokens import parse_caption_line
+from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.run_config import RunConfig
+from motionaug.schemas.styles import StyleExample, StyleSpec
+from motionaug.workflows.executor import RunProgress
+from motionaug.workflows.ray_executor import RunSummary, execute_run
 
 DEMO_STYLES = ("proud", "depressed", "old")
 DEMO_SEED = 0
@@ -61,41 +62,56 @@ def demo_styles(corpus: Path) -> list[StyleSpec]:
     specs = []
     for style in DEMO_STYLES:
         clip_id = next(
-            (cid for cid, r in sorted(labels.items()) if r["style"] == style and r["content"] == "walk"
-             and r["meta"].get("split") == "train"),
+            (
+                cid
+                for cid, r in sorted(labels.items())
+                if r["style"] == style and r["content"] == "walk" and r["meta"].get("split") == "train"
+            ),
             None,
-        )  # fmt: skip
+        )
         if clip_id is None:
             raise MotionDataError(str(corpus), f"no training walk in style {style!r} to use as the example")
         first_line = (corpus / "texts" / f"{clip_id}.txt").read_text(encoding="utf-8").splitlines()[0]
         description = parse_caption_line(first_line, clip_id).text
-        specs.append(StyleSpec(name=style, words=STYLE_WORDS[style], examples=[StyleExample(source=clip_id, description=description)]))
+        specs.append(
+            StyleSpec(
+                name=style, words=STYLE_WORDS[style], examples=[StyleExample(source=clip_id, description=description)]
+            )
+        )
     return specs
 
 
-def demo_config(corpus: Path, run_dir: Path, base_models: Path, method: str = "onthefly", size: str = "small") -> RunConfig:
+def demo_config(
+    corpus: Path, run_dir: Path, base_models: Path, method: str = "onthefly", size: str = "small"
+) -> RunConfig:
     """The demo run: every neutral clip of the corpus in every demo style."""
     if method not in DEMO_METHODS:
         raise MotionDataError("demo --method", f"unknown method {method!r} (choose from {', '.join(DEMO_METHODS)})")
     if size not in DEMO_PROFILES:
         raise MotionDataError("demo --size", f"unknown size {size!r} (choose from {', '.join(DEMO_PROFILES)})")
     pretrain, params = DEMO_PROFILES[size]
-    return RunConfig.model_validate({
-        "corpus": {"path": corpus, "filters": {"source_styles": ["neutral"], "min_frames": 40, "max_frames": 199}},
-        "styles": [s.model_dump() for s in demo_styles(corpus)],
-        "method": {"name": method, "params": params if method == "onthefly" else {}},
-        "base_models": {"path": base_models, "size": size, "pretrain": pretrain},
-        # pre-training and fine-tunes take both cores (one task at a time); transfers one core each, two at a time
-        "compute": {"num_cpus": 2, "finetune_cpus": 2, "transfer_cpus": 1, "batch_size": 32, "unit_size": 128},
-        "output": run_dir,
-        "seed": DEMO_SEED,
-    })  # fmt: skip
+    return RunConfig.model_validate(
+        {
+            "corpus": {"path": corpus, "filters": {"source_styles": ["neutral"], "min_frames": 40, "max_frames": 199}},
+            "styles": [s.model_dump() for s in demo_styles(corpus)],
+            "method": {"name": method, "params": params if method == "onthefly" else {}},
+            "base_models": {"path": base_models, "size": size, "pretrain": pretrain},
+            # pre-training and fine-tunes take both cores (one task at a time); transfers one core each, two at a time
+            "compute": {"num_cpus": 2, "finetune_cpus": 2, "transfer_cpus": 1, "batch_size": 32, "unit_size": 128},
+            "output": run_dir,
+            "seed": DEMO_SEED,
+        }
+    )
 
 
 def run_demo(
-    out: Path, clips: int = 1000, progress: RunProgress | None = None, base_models: Path | None = None,
-    method: str = "onthefly", size: str = "small",
-) -> DemoResult:  # fmt: skip
+    out: Path,
+    clips: int = 1000,
+    progress: RunProgress | None = None,
+    base_models: Path | None = None,
+    method: str = "onthefly",
+    size: str = "small",
+) -> DemoResult:
     """Corpus -> base models -> run -> HumanML3D export under ``out``; every step skipped when already complete."""
     corpus = ensure_corpus(out / "corpus", clips)
     config = demo_config(corpus, out / "run", base_models or out / "base_models", method, size)

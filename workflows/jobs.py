@@ -22,8 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from schemas.errors import MotionDataError
-from schemas.run_config import RunConfig
+from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.run_config import RunConfig
 
 if TYPE_CHECKING:
     from ray.job_submission import JobSubmissionClient
@@ -80,7 +80,7 @@ def auth_headers() -> dict[str, str]:
     return {"Authorization": f"Bearer {token}"} if token else {}
 
 
-def connect(address: str) -> "JobSubmissionClient":
+def connect(address: str) -> JobSubmissionClient:
     """A Jobs API client for the cluster whose dashboard is at ``address``, token attached."""
     from ray.job_submission import JobSubmissionClient
 
@@ -149,7 +149,7 @@ def submit_run(
     return SubmittedJob(job_id=job_id, run_id=run_id, run_dir=config.output, dashboard_url=url, entrypoint=command)
 
 
-def next_attempt(client: "JobSubmissionClient", url: str, run_id: str, retry: bool) -> str:
+def next_attempt(client: JobSubmissionClient, url: str, run_id: str, retry: bool) -> str:
     """The submission id for this run: the base id, or with ``retry`` the next ``-<n>`` after failed attempts."""
     base = job_id_for(run_id)
     attempt, job_id = 1, base
@@ -163,7 +163,7 @@ def next_attempt(client: "JobSubmissionClient", url: str, run_id: str, retry: bo
     return job_id
 
 
-def _job_status_or_none(client: "JobSubmissionClient", url: str, job_id: str) -> str | None:
+def _job_status_or_none(client: JobSubmissionClient, url: str, job_id: str) -> str | None:
     with _cluster_errors(url):
         try:
             return str(client.get_job_status(job_id))
@@ -173,7 +173,7 @@ def _job_status_or_none(client: "JobSubmissionClient", url: str, job_id: str) ->
             raise MotionDataError(job_id, str(err).splitlines()[0]) from None
 
 
-def _state(client: "JobSubmissionClient", url: str, job: str) -> JobState:
+def _state(client: JobSubmissionClient, url: str, job: str) -> JobState:
     job_id = job_id_for(job)
     with _cluster_errors(url):
         try:
@@ -184,9 +184,12 @@ def _state(client: "JobSubmissionClient", url: str, job: str) -> JobState:
             raise MotionDataError(job_id, str(err).splitlines()[0]) from None
     run_dir = (info.metadata or {}).get("run_dir")
     return JobState(
-        job_id=job_id, status=str(info.status), message=info.message or "", entrypoint=info.entrypoint or "",
+        job_id=job_id,
+        status=str(info.status),
+        message=info.message or "",
+        entrypoint=info.entrypoint or "",
         run_dir=Path(run_dir) if run_dir else None,
-    )  # fmt: skip
+    )
 
 
 def job_state(address: str, job: str) -> JobState:

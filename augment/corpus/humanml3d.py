@@ -21,12 +21,12 @@ from typing import Literal
 
 import numpy as np
 
-from augment.clip import MotionClip
-from augment.corpus.rejects import Reject
-from augment.corpus.tokens import format_caption_line, parse_caption_line
-from schemas.errors import MotionDataError
-from augment.io import atomic_open, atomic_save_npy, atomic_write_text
-from schemas.captions import Caption
+from motionaug.augment.corpus.clip import MotionClip
+from motionaug.augment.corpus.rejects import Reject
+from motionaug.augment.io import atomic_open, atomic_save_npy, atomic_write_text
+from motionaug.augment.text.tokens import format_caption_line, parse_caption_line
+from motionaug.schemas.captions import Caption
+from motionaug.schemas.errors import MotionDataError
 
 MOTION_DIR = "new_joint_vecs"
 TEXT_DIR = "texts"
@@ -47,6 +47,15 @@ def check_id(clip_id: str, source: str) -> str:
 def span_id(clip_id: str, start: float, end: float) -> str:
     """Id of the cut for a caption span: ``<id>_<start centiseconds:04d>_<end centiseconds:04d>``."""
     return f"{clip_id}_{round(start * 100):04d}_{round(end * 100):04d}"
+
+
+SPAN_ID = re.compile(r"^(?P<parent>.+)_\d{4,}_\d{4,}$")
+
+
+def span_parent(clip_id: str) -> str | None:
+    """The source id a caption-span id (:func:`span_id`) was cut from, or None for a whole-file id."""
+    match = SPAN_ID.match(clip_id)
+    return match.group("parent") if match else None
 
 
 def check_motion(motion: np.ndarray, feature_dim: int | None, source: str) -> None:
@@ -119,7 +128,8 @@ def read_captions(path: Path) -> list[Caption]:
 class HumanML3DReader:
     """Stream the clips of a HumanML3D folder; holds one source clip in memory at a time.
 
-    ``split`` names a split file (``"all"``, ``"train"``, ...) or ``None`` for every .npy. Frame limits
+    ``split`` names a split file (``"all"``, ``"train"``, ...) or ``None`` for every .npy; ``files`` reads only
+    these source ids instead (the split file is not needed then). Frame limits
     are inclusive; the reference training filter (40 <= T < 200) is ``min_frames=40, max_frames=199``.
     Skipped clips collect in ``rejects`` (reset on each iteration) unless ``on_error="raise"``.
     """
@@ -134,6 +144,7 @@ class HumanML3DReader:
         max_frames: int | None = None,
         split_spans: bool = True,
         on_error: OnError = "skip",
+        files: Iterable[str] | None = None,
     ) -> None:
         if on_error not in ("skip", "raise"):
             raise ValueError(f"on_error must be 'skip' or 'raise', got {on_error!r}")
@@ -145,10 +156,11 @@ class HumanML3DReader:
         self.max_frames = max_frames
         self.split_spans = split_spans
         self.on_error = on_error
+        self.files = None if files is None else list(files)
         self.rejects: list[Reject] = []
         if not (self.root / MOTION_DIR).is_dir():
             raise MotionDataError(str(self.root), f"not a HumanML3D folder: no {MOTION_DIR}/")
-        if self.split is not None and not self.split_file.is_file():
+        if self.files is None and self.split is not None and not self.split_file.is_file():
             raise MotionDataError(str(self.split_file), "split file is missing")
 
     @property
@@ -188,7 +200,11 @@ class HumanML3DReader:
                 yield self._labelled(clip, labels.get(clip.meta.get("parent", clip.id)))
 
     def _entries(self) -> Iterator[tuple[str, str]]:
-        """(id, where it was listed), streamed from the split file or the motion folder."""
+        """(id, where it was listed), streamed from ``files``, the split file or the motion folder."""
+        if self.files is not None:
+            for file_id in self.files:
+                yield file_id, str(self.root / MOTION_DIR / f"{file_id}.npy")
+            return
         if self.split is None:
             for path in sorted((self.root / MOTION_DIR).glob("*.npy")):
                 yield path.stem, str(path)

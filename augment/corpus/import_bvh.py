@@ -1,31 +1,84 @@
-"""Turn a folder of BVH files into a corpus: retarget to t2m, resample to 20 fps, extract features.
+"""Turn a folder of BVH files into a corpus: retarget to t2m, resample to 20 fps, extract features, caption.
 
-Labels come from options, or from Bandai-style file names and JSON. Every file that cannot be used
-becomes a reject with its reason; the others are written.
+Labels come from options, or from Bandai-style file names and JSON; captions are written from them
+(``augment.text.label_captions``). Every file that cannot be used becomes a reject with its reason; the others
+are written. Options make the result training-ready the way the on-the-fly paper prepares Bandai-2 (sec. 4.2;
+``docs/bandai.md``):
+
+- ``max_frames``: a take longer than this is cut into ``ceil(T / max_frames)`` consecutive pieces of equal length
+  (differing by at most one frame), never padded, no frame dropped; each piece is a clip of its own with its own
+  whole-clip captions, named by its span like the HumanML3D reader's cuts (``<take>_<start cs>_<end cs>``).
+- ``val_takes``/``test_takes``: whole takes go to one split, decided per (content, style) pair before any BVH is
+  read: in take-number order, the last ``test_takes`` are test, the ``val_takes`` before them val, the rest train.
+- ``mean_std``: ``Mean.npy``/``Std.npy`` from the train split only (``compute_mean_std``).
+- clips shorter than MDM's 40-frame minimum stay in the corpus and are listed in ``too_short_for_mdm.txt``.
+- the data licence goes to ``corpus.json`` (``licence``), ``NOTICE`` and a copy of the source's ``LICENSE``;
+  ``corpus_licence(root)`` reads it back.
 """
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import re
-from collections.abc import Iterator
+import shutil
+import time
+from collections import defaultdict
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
 
-from augment.clip import MotionClip
-from augment.corpus import REJECTS_FILE
-from augment.corpus.humanml3d import write_humanml3d
-from augment.corpus.parquet import ParquetCorpusWriter
-from augment.corpus.rejects import Reject, write_rejects
-from schemas.errors import MotionDataError
-from augment.features import extract_features
-from augment.retarget import load_bvh_as_t2m_joints, labels_from_bandai
-from schemas.captions import Caption
+from motionaug.augment.corpus import REJECTS_FILE
+from motionaug.augment.corpus.clip import MotionClip
+from motionaug.augment.corpus.humanml3d import MOTION_DIR, load_npy, span_id, write_humanml3d
+from motionaug.augment.corpus.parquet import ParquetCorpusWriter
+from motionaug.augment.corpus.rejects import Reject, write_rejects
+from motionaug.augment.io import atomic_write_text
+from motionaug.augment.motion.features import compute_mean_std, extract_features
+from motionaug.augment.motion.retarget import labels_from_bandai, load_bvh_as_t2m_joints
+from motionaug.augment.text.label_captions import label_caption, label_captions
+from motionaug.schemas.errors import MotionDataError
 
 MIN_FRAMES = 10
+MDM_MIN_FRAMES = 40  # MDM's Text2MotionDatasetV2 drops clips shorter than this (and of 200 frames or more)
+BANDAI2_CLIP_FRAMES = 196  # the paper's Bandai-2 clip length (sec. 4.2), also MDM's max_motion_length
+TOO_SHORT_FILE = "too_short_for_mdm.txt"
+CORPUS_META_FILE = "corpus.json"
+NOTICE_FILE = "NOTICE"
+LICENSE_FILE = "LICENSE"
+SPLITS = ("train", "val", "test")
+__all__ = [
+    "CorpusMeta",
+    "ImportSummary",
+    "corpus_licence",
+    "cut_bounds",
+    "cut_clip",
+    "import_bvh",
+    "iter_bvh_clips",
+    "label_caption",
+    "split_takes",
+]
+
+BANDAI_LICENCE = (
+    "CC BY-NC 4.0, non-commercial use only; Bandai Namco Research Inc., Bandai-Namco-Research-Motiondataset"
+)
+BANDAI_ATTRIBUTION = (
+    "Bandai Namco Research Inc., Bandai-Namco-Research-Motiondataset "
+    "(https://github.com/BandaiNamcoResearchInc/Bandai-Namco-Research-Motiondataset)"
+)
+_BANDAI_NAME = re.compile(r"dataset-\d+_[^_]+_[^_]+_\d+")
 _UNSAFE = re.compile(r"[^A-Za-z0-9_.-]+")
+_TAKE_NUMBER = re.compile(r"(\d+)$")
+
+CUT_RULE = "takes longer than {n} frames are cut into ceil(T/{n}) consecutive equal pieces (+-1 frame), never padded"
+SPLIT_RULE = (
+    "per (content, style) pair in take-number order: the last {test} takes test, the {val} before them val, "
+    "the rest train (fewer when a pair has under {need} takes; at least one stays in train)"
+)
 
 
 class ImportSummary(BaseModel):
@@ -33,23 +86,56 @@ class ImportSummary(BaseModel):
     frames: int
     rejects: list[Reject]
     out: str
+    takes: int = 0
+    cut_takes: int = 0
+    pieces: int = Field(0, description="Clips cut from the takes in cut_takes.")
+    too_short: list[str] = Field(default_factory=list, description=f"Clips under {MDM_MIN_FRAMES} frames.")
+    splits: dict[str, int] = Field(default_factory=dict, description="Clips per split file.")
+    missing_pairs: dict[str, list[str]] = Field(default_factory=dict, description="'content/style' absent per split.")
+    licence: str | None = None
+    seconds: float = 0.0
 
 
-def label_caption(content: str, style: str | None) -> Caption:
-    """A plain caption with valid lemma/POS tokens for a (content, style) label pair."""
-    action = content.replace("-", " ").replace("_", " ")
-    words = [("a", "DET"), ("person", "NOUN"), ("perform", "VERB")]
-    words += [(w, "NOUN") for w in action.split()]
-    if style and style != "normal" and style != "neutral":
-        words += [("in", "ADP"), ("a", "DET")] + [(w, "ADJ") for w in style.replace("-", " ").split()] + [("way", "NOUN")]
-    text = " ".join("performs" if (w, p) == ("perform", "VERB") else w for w, p in words)
-    return Caption(text=text, tokens=[f"{w}/{p}" for w, p in words])
+class CorpusMeta(BaseModel):
+    """``corpus.json``: where an imported corpus came from, how it was cut and split, and its licence."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    version: int = 1
+    source: str
+    format: str
+    fps: float = 20.0
+    licence: str | None = None
+    attribution: str | None = None
+    commercial_use: bool | None = None
+    cut_rule: str | None = None
+    split_rule: str | None = None
+    mean_std: str | None = Field(None, description="Which clips Mean.npy/Std.npy were computed from.")
+    captions_per_clip: int = 1
+    takes: int = 0
+    clips: int = 0
+    splits: dict[str, int] = Field(default_factory=dict)
+    too_short_for_mdm: int = 0
 
 
 def clip_id_from_path(path: Path) -> str:
     """A filename-safe id from a file stem; data never becomes a path unchecked."""
     stem = _UNSAFE.sub("_", path.stem).strip("._-")
     return stem[:200] or "clip"
+
+
+def bvh_files(src: Path) -> list[Path]:
+    """``src`` itself or every ``*.bvh`` under it, sorted."""
+    files = [src] if src.is_file() else sorted(src.rglob("*.bvh"))
+    if not files:
+        raise MotionDataError(str(src), "no .bvh files found")
+    return files
+
+
+def clip_labels(path: Path, content: str | None = None, style: str | None = None) -> tuple[str, str | None]:
+    """(content, style): the options when ``content`` is given, else the Bandai JSON/name; ``style`` overrides."""
+    c, s = (content, style) if content else labels_from_bandai(path)
+    return c, style or s
 
 
 def iter_bvh_clips(
@@ -59,13 +145,11 @@ def iter_bvh_clips(
     style: str | None = None,
     joint_map: str | os.PathLike[str] | None = None,
     fps: float = 20.0,
+    captions: int = 3,
 ) -> Iterator[MotionClip]:
-    """Clips of every ``*.bvh`` under ``src`` (or ``src`` itself), in sorted order."""
-    files = [src] if src.is_file() else sorted(src.rglob("*.bvh"))
-    if not files:
-        raise MotionDataError(str(src), "no .bvh files found")
+    """Clips of every ``*.bvh`` under ``src`` (or ``src`` itself), in sorted order, with ``captions`` captions each."""
     seen: set[str] = set()
-    for path in files:
+    for path in bvh_files(src):
         clip_id = clip_id_from_path(path)
         try:
             if clip_id in seen:
@@ -73,14 +157,164 @@ def iter_bvh_clips(
             joints, _ = load_bvh_as_t2m_joints(path, joint_map=joint_map, fps=fps)
             if len(joints) < MIN_FRAMES + 1:
                 raise MotionDataError(str(path), f"{len(joints)} frames at {fps:g} fps; need at least {MIN_FRAMES + 1}")
-            c, s = (content, style) if content else labels_from_bandai(path)
-            s = style or s
+            c, s = clip_labels(path, content, style)
             motion = extract_features(joints, source=str(path))
         except MotionDataError as err:
             rejects.append(Reject.from_error(clip_id, err))
             continue
         seen.add(clip_id)
-        yield MotionClip(clip_id, motion, [label_caption(c, s)], fps=fps, content=c, style=s, source=str(path))
+        texts = label_captions(c, s, n=captions, seed=clip_id)
+        yield MotionClip(clip_id, motion, texts, fps=fps, content=c, style=s, source=str(path))
+
+
+# ---- cutting ----------------------------------------------------------------------------------------------------
+
+
+def cut_bounds(n_frames: int, max_frames: int) -> list[tuple[int, int]]:
+    """[start, stop) of each piece: ``ceil(n / max)`` consecutive pieces whose lengths differ by at most one.
+
+    Equal pieces rather than full ``max_frames`` windows plus a remainder: no piece is a short leftover (each
+    is at least half of ``max_frames`` once a take is cut), nothing is dropped and nothing needs padding.
+    """
+    if max_frames < 1:
+        raise ValueError(f"max_frames must be >= 1, got {max_frames}")
+    pieces = max(1, math.ceil(n_frames / max_frames))
+    base, extra = divmod(n_frames, pieces)
+    bounds, start = [], 0
+    for k in range(pieces):
+        stop = start + base + (1 if k < extra else 0)
+        bounds.append((start, stop))
+        start = stop
+    return bounds
+
+
+def cut_clip(clip: MotionClip, max_frames: int, captions: int = 3) -> list[MotionClip]:
+    """The clip itself when it fits, else its pieces (``cut_bounds``), each with its own whole-clip captions."""
+    bounds = cut_bounds(clip.n_frames, max_frames)
+    if len(bounds) == 1:
+        return [clip]
+    pieces = []
+    for k, (start, stop) in enumerate(bounds, 1):
+        piece_id = span_id(clip.id, start / clip.fps, stop / clip.fps)
+        texts = label_captions(clip.content, clip.style, n=captions, seed=piece_id) if clip.content else clip.captions
+        meta = {**clip.meta, "take": clip.id, "piece": f"{k}/{len(bounds)}", "frames": f"{start}-{stop}"}
+        pieces.append(
+            MotionClip(
+                piece_id,
+                clip.motion[start:stop].copy(),
+                [c.model_copy(update={"start": 0.0, "end": 0.0}) for c in texts],
+                fps=clip.fps,
+                content=clip.content,
+                style=clip.style,
+                source=clip.source,
+                meta=meta,
+            )
+        )
+    return pieces
+
+
+# ---- splits -----------------------------------------------------------------------------------------------------
+
+
+def take_number(take_id: str) -> int | None:
+    """The trailing number of a take id ('dataset-2_walk_elderly_017' -> 17), None without one."""
+    match = _TAKE_NUMBER.search(take_id)
+    return int(match.group(1)) if match else None
+
+
+def split_takes(takes: Iterable[tuple[str, tuple[str, str | None]]], val_takes: int, test_takes: int) -> dict[str, str]:
+    """Split of each take id, given (take id, (content, style)) pairs; see ``SPLIT_RULE``.
+
+    Per pair, takes are ordered by take number (then id); the last ``test_takes`` go to test and the ``val_takes``
+    before them to val. A pair with fewer than ``val_takes + test_takes + 1`` takes keeps at least one take in
+    train and shares the rest between test and val (test first).
+    """
+    if val_takes < 0 or test_takes < 0:
+        raise ValueError(f"val_takes and test_takes must be >= 0, got {val_takes} and {test_takes}")
+    by_pair: dict[tuple[str, str | None], list[str]] = defaultdict(list)
+    for take_id, pair in takes:
+        by_pair[pair].append(take_id)
+    split_of: dict[str, str] = {}
+    for ids in by_pair.values():
+        ids.sort(key=lambda t: (take_number(t) is None, take_number(t) or 0, t))
+        spare = len(ids) - 1
+        n_test = min(test_takes, math.ceil(spare / 2) if val_takes else spare)
+        n_val = min(val_takes, spare - n_test)
+        n_train = len(ids) - n_test - n_val
+        for i, take_id in enumerate(ids):
+            split_of[take_id] = "train" if i < n_train else "val" if i < n_train + n_val else "test"
+    return split_of
+
+
+def _planned_splits(
+    files: list[Path], content: str | None, style: str | None, val_takes: int, test_takes: int
+) -> dict[str, str]:
+    """Splits from names and labels only, so a take's split never depends on whether another take imports."""
+    takes = []
+    for path in files:
+        try:
+            takes.append((clip_id_from_path(path), clip_labels(path, content, style)))
+        except MotionDataError:
+            continue  # rejected with its reason when the clip is read
+    return split_takes(takes, val_takes, test_takes)
+
+
+# ---- licence ----------------------------------------------------------------------------------------------------
+
+
+def is_bandai_name(path: Path) -> bool:
+    """A Bandai Namco Research file name: ``dataset-N_{content}_{style}_{id}``."""
+    return bool(_BANDAI_NAME.fullmatch(path.stem))
+
+
+def _licence_file(src: Path, files: list[Path]) -> Path | None:
+    """The source's LICENSE: in ``src``, else beside a Bandai dataset (its root, or the folder above it)."""
+    candidates = [src / LICENSE_FILE] if src.is_dir() else [src.parent / LICENSE_FILE]
+    for path in files[:1]:
+        root = path.parent.parent
+        candidates += [root / LICENSE_FILE, root.parent / LICENSE_FILE]
+    return next((c for c in candidates if c.is_file()), None)
+
+
+def corpus_licence(root: str | os.PathLike[str]) -> str | None:
+    """The licence recorded with a corpus (``corpus.json``'s ``licence``, else ``NOTICE``'s first line), or None.
+
+    ``root`` is the corpus folder or a file in it (a ``.parquet``); carry the string into manifests and exports.
+    """
+    root = Path(root)
+    folder = root if root.is_dir() else root.parent
+    meta = folder / CORPUS_META_FILE
+    if meta.is_file():
+        try:
+            record = json.loads(meta.read_text(encoding="utf-8"))
+        except (ValueError, UnicodeDecodeError) as err:
+            raise MotionDataError(str(meta), f"not a JSON corpus record ({err})") from None
+        if isinstance(record, dict) and record.get("licence"):
+            return str(record["licence"])
+    notice = folder / NOTICE_FILE
+    if notice.is_file():
+        first = next((ln.strip() for ln in notice.read_text(encoding="utf-8").splitlines() if ln.strip()), "")
+        return first.removeprefix("Licence:").strip() or None
+    return None
+
+
+def _write_licence(out: Path, licence: str, bandai: bool, licence_file: Path | None) -> None:
+    lines = [f"Licence: {licence}"]
+    if bandai:
+        lines += [
+            f"Attribution: {BANDAI_ATTRIBUTION}.",
+            "Motion data derived from the Bandai Namco Research motion datasets (retargeted to the t2m skeleton,",
+            "resampled to 20 fps, cut into clips, captioned from the labels). Creative Commons",
+            "Attribution-NonCommercial 4.0 International: https://creativecommons.org/licenses/by-nc/4.0/.",
+            "Do not use this corpus, or models and data made from it, for commercial purposes.",
+        ]
+    if licence_file is not None:
+        lines.append(f"The source's licence text is in {LICENSE_FILE}.")
+        shutil.copyfile(licence_file, out / LICENSE_FILE)
+    atomic_write_text(out / NOTICE_FILE, "\n".join(lines) + "\n")
+
+
+# ---- import -----------------------------------------------------------------------------------------------------
 
 
 def import_bvh(
@@ -90,19 +324,65 @@ def import_bvh(
     content: str | None = None,
     style: str | None = None,
     joint_map: str | os.PathLike[str] | None = None,
+    *,
+    max_frames: int | None = None,
+    val_takes: int = 0,
+    test_takes: int = 0,
+    mean_std: bool = False,
+    licence: str | None = None,
+    captions: int = 3,
 ) -> ImportSummary:
-    """Write every usable BVH under ``src`` to ``out``; rejects go to ``out/rejects.jsonl``."""
+    """Write every usable BVH under ``src`` to ``out`` (a new or empty folder); rejects go to ``out/rejects.jsonl``.
+
+    ``max_frames`` cuts long takes (``cut_bounds``); ``val_takes``/``test_takes`` > 0 split takes per (content,
+    style) pair (``split_takes``) into ``train.txt``/``val.txt``/``test.txt``/``train_val.txt`` beside ``all.txt``
+    (HumanML3D) or the ``split`` column (Parquet); ``mean_std`` writes ``Mean.npy``/``Std.npy`` from the train
+    split (every clip without splits). ``licence`` names the data's licence; Bandai file names imply theirs.
+    """
+    started = time.perf_counter()
     src, out = Path(src), Path(out)
     if not src.exists():
         raise MotionDataError(str(src), "does not exist")
+    if max_frames is not None and max_frames < MIN_FRAMES:
+        raise MotionDataError("max_frames", f"must be at least {MIN_FRAMES}, got {max_frames}")
+    if captions < 1 or val_takes < 0 or test_takes < 0:
+        raise MotionDataError("options", "captions must be >= 1 and val/test takes >= 0")
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise MotionDataError(str(out), "is not an empty folder; import into a new or empty folder")
+    files = bvh_files(src)
+    splitting = val_takes > 0 or test_takes > 0
+    split_of = _planned_splits(files, content, style, val_takes, test_takes) if splitting else {}
+    bandai = any(is_bandai_name(path) for path in files)
+    licence = licence or (BANDAI_LICENCE if bandai else None)
+
     rejects: list[Reject] = []
-    frames = 0
+    summary = ImportSummary(clips=0, frames=0, rejects=rejects, out=str(out), licence=licence)
+    split_ids: dict[str, list[str]] = {name: [] for name in SPLITS}
+    pairs: dict[str, set[str]] = {name: set() for name in (*SPLITS, "all")}
+    train_motion: list[np.ndarray] = []  # Parquet only: HumanML3D's train clips are read back from disk
 
     def counted() -> Iterator[MotionClip]:
-        nonlocal frames
-        for clip in iter_bvh_clips(src, rejects, content, style, joint_map):
-            frames += clip.n_frames
-            yield clip
+        for take in iter_bvh_clips(src, rejects, content, style, joint_map, captions=captions):
+            summary.takes += 1
+            split = split_of.get(take.id)
+            if split:
+                take.meta["split"] = split
+            pieces = cut_clip(take, max_frames, captions) if max_frames else [take]
+            if len(pieces) > 1:
+                summary.cut_takes += 1
+                summary.pieces += len(pieces)
+            for clip in pieces:
+                summary.frames += clip.n_frames
+                pair = f"{clip.content}/{clip.style}"
+                pairs["all"].add(pair)
+                if split:
+                    split_ids[split].append(clip.id)
+                    pairs[split].add(pair)
+                if clip.n_frames < MDM_MIN_FRAMES:
+                    summary.too_short.append(clip.id)
+                if mean_std and fmt == "parquet" and (split == "train" if splitting else True):
+                    train_motion.append(clip.motion)
+                yield clip
 
     if fmt == "humanml3d":
         ids = write_humanml3d(counted(), out)
@@ -113,5 +393,43 @@ def import_bvh(
             for clip in counted():
                 writer.write(clip)
                 ids.append(clip.id)
+    summary.clips = len(ids)
     write_rejects(rejects, out / REJECTS_FILE)
-    return ImportSummary(clips=len(ids), frames=frames, rejects=rejects, out=str(out))
+    atomic_write_text(out / TOO_SHORT_FILE, "".join(f"{clip_id}\n" for clip_id in summary.too_short))
+    if splitting:
+        split_ids["train_val"] = split_ids["train"] + split_ids["val"]
+        if fmt == "humanml3d":
+            for name, members in split_ids.items():
+                atomic_write_text(out / f"{name}.txt", "".join(f"{clip_id}\n" for clip_id in members))
+        summary.splits = {name: len(members) for name, members in split_ids.items()}
+        missing = {name: sorted(pairs["all"] - pairs[name]) for name in SPLITS}
+        summary.missing_pairs = {name: absent for name, absent in missing.items() if absent}
+    if mean_std:
+        stats_ids = split_ids["train"] if splitting else ids
+        if fmt == "humanml3d":
+            motions: Iterable[np.ndarray] = (load_npy(out / MOTION_DIR / f"{i}.npy", 2, None) for i in stats_ids)
+        else:
+            motions = train_motion
+        compute_mean_std(motions).save(out)
+    if licence:
+        _write_licence(out, licence, bandai, _licence_file(src, files))
+    meta = CorpusMeta(
+        source=src.name or str(src),
+        format=fmt,
+        licence=licence,
+        attribution=BANDAI_ATTRIBUTION if bandai else None,
+        commercial_use=False if bandai else None,
+        cut_rule=CUT_RULE.format(n=max_frames) if max_frames else None,
+        split_rule=SPLIT_RULE.format(val=val_takes, test=test_takes, need=val_takes + test_takes + 1)
+        if splitting
+        else None,
+        mean_std=("train split" if splitting else "all clips") if mean_std else None,
+        captions_per_clip=captions,
+        takes=summary.takes,
+        clips=summary.clips,
+        splits=summary.splits,
+        too_short_for_mdm=len(summary.too_short),
+    )
+    atomic_write_text(out / CORPUS_META_FILE, meta.model_dump_json(indent=2) + "\n")
+    summary.seconds = time.perf_counter() - started
+    return summary

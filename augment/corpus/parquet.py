@@ -15,12 +15,11 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from augment.clip import MotionClip
-from augment.corpus.humanml3d import check_motion
-from schemas.errors import MotionDataError
-from augment.io import temp_path_for
-from schemas.captions import Caption
-from schemas.corpus import (
+from motionaug.augment.corpus.clip import MotionClip
+from motionaug.augment.corpus.humanml3d import check_motion
+from motionaug.augment.io import temp_path_for
+from motionaug.schemas.captions import Caption
+from motionaug.schemas.corpus import (
     CAPTION_TYPE,
     CORPUS_FIELDS,
     CORPUS_SCHEMA_VERSION,
@@ -29,18 +28,24 @@ from schemas.corpus import (
     META_SKELETON,
     corpus_schema,
 )
+from motionaug.schemas.errors import MotionDataError
 
 PART_PATTERN = "part-*.parquet"
 # Motion floats do not repeat, so no dictionary; byte-stream-split lets zstd find the shared exponent
-# bytes (about 20% smaller and faster to read on real features). Repetitive labels keep a dictionary.
+# bytes (smaller and faster to read on real features). Repetitive labels keep a dictionary.
 WRITE_OPTIONS = {
     "compression": "zstd",
     "column_encoding": {"motion.list.element": "BYTE_STREAM_SPLIT"},
     "use_dictionary": [
-        "captions.list.element.tokens.list.element", "content", "style", "source", "split",
-        "meta.key_value.key", "meta.key_value.value",
+        "captions.list.element.tokens.list.element",
+        "content",
+        "style",
+        "source",
+        "split",
+        "meta.key_value.key",
+        "meta.key_value.value",
     ],
-}  # fmt: skip
+}
 
 
 def clips_to_table(clips: Iterable[MotionClip], skeleton: str = "t2m", feature_dim: int = 263) -> pa.Table:
@@ -96,14 +101,22 @@ def table_to_clips(table: pa.Table, source: str = "table") -> list[MotionClip]:
 
 
 def _row_to_clip(row: dict, motion: np.ndarray) -> MotionClip:
-    captions = [Caption(text=c["text"], tokens=c["tokens"], start=_f32(c["start"]), end=_f32(c["end"])) for c in row["captions"]]
+    captions = [
+        Caption(text=c["text"], tokens=c["tokens"], start=_f32(c["start"]), end=_f32(c["end"])) for c in row["captions"]
+    ]
     meta = dict(row["meta"] or [])
     if row["split"] is not None:
         meta["split"] = row["split"]
     return MotionClip(
-        row["id"], motion, captions, fps=_f32(row["fps"]), content=row["content"], style=row["style"],
-        source=row["source"], meta=meta,
-    )  # fmt: skip
+        row["id"],
+        motion,
+        captions,
+        fps=_f32(row["fps"]),
+        content=row["content"],
+        style=row["style"],
+        source=row["source"],
+        meta=meta,
+    )
 
 
 def parquet_files(path: str | os.PathLike[str]) -> list[Path]:
@@ -122,7 +135,9 @@ def check_corpus_schema(schema: pa.Schema, source: str) -> dict[str, str]:
         raise MotionDataError(source, f"not a motionaug corpus: no {META_SCHEMA_VERSION.decode()} in the schema")
     version = int(metadata[META_SCHEMA_VERSION])
     if version > CORPUS_SCHEMA_VERSION:
-        raise MotionDataError(source, f"corpus schema version {version} is newer than this reader ({CORPUS_SCHEMA_VERSION})")
+        raise MotionDataError(
+            source, f"corpus schema version {version} is newer than this reader ({CORPUS_SCHEMA_VERSION})"
+        )
     missing = [field.name for field in CORPUS_FIELDS if field.name not in schema.names]
     if missing:
         raise MotionDataError(source, f"corpus columns missing: {missing}")
@@ -176,7 +191,7 @@ class ParquetCorpusWriter:
         self._rows_in_file = 0
         self._closed = False
 
-    def __enter__(self) -> "ParquetCorpusWriter":
+    def __enter__(self) -> ParquetCorpusWriter:
         return self
 
     def __exit__(self, exc_type: type | None, exc: BaseException | None, tb: TracebackType | None) -> None:

@@ -8,8 +8,8 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict
 
-from schemas.errors import MotionDataError
-from augment.io import atomic_open
+from motionaug.augment.io import atomic_open
+from motionaug.schemas.errors import MotionDataError
 
 
 class Reject(BaseModel):
@@ -22,7 +22,7 @@ class Reject(BaseModel):
     reason: str
 
     @classmethod
-    def from_error(cls, clip_id: str, err: MotionDataError) -> "Reject":
+    def from_error(cls, clip_id: str, err: MotionDataError) -> Reject:
         return cls(id=clip_id, source=err.source, reason=err.reason)
 
     def __str__(self) -> str:

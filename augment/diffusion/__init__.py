@@ -1,6 +1,6 @@
 """Diffusion math without networks: schedule, q/p formulas, DDPM/DDIM loops with inpainting and guidance hooks."""
 
-from augment.diffusion.gaussian import (
+from motionaug.augment.diffusion.gaussian import (
     DenoiseFn,
     PMeanVar,
     masked_mse,
@@ -12,7 +12,7 @@ from augment.diffusion.gaussian import (
     sample_timesteps,
     x0_training_loss,
 )
-from augment.diffusion.samplers import (
+from motionaug.augment.diffusion.samplers import (
     InpaintSpec,
     SamplerStep,
     bind_model,
@@ -23,7 +23,7 @@ from augment.diffusion.samplers import (
     ddpm_step,
     guided_x0,
 )
-from augment.diffusion.schedule import NoiseSchedule, cosine_betas, space_timesteps, start_step_for
+from motionaug.augment.diffusion.schedule import NoiseSchedule, cosine_betas, space_timesteps, start_step_for
 
 __all__ = [
     "DenoiseFn",

@@ -12,8 +12,8 @@ from typing import Protocol
 import torch
 from torch import Tensor
 
-from augment.diffusion.schedule import NoiseSchedule, extract
-from schemas.errors import MotionDataError
+from motionaug.augment.diffusion.schedule import NoiseSchedule, extract
+from motionaug.schemas.errors import MotionDataError
 
 
 class DenoiseFn(Protocol):
@@ -39,7 +39,10 @@ def q_sample(schedule: NoiseSchedule, x0: Tensor, t: Tensor, noise: Tensor) -> T
     """x_t ~ q(x_t | x_0) = sqrt(alpha_bar_t) x0 + sqrt(1 - alpha_bar_t) noise."""
     if noise.shape != x0.shape:
         raise MotionDataError("q_sample", f"noise shape {tuple(noise.shape)} != x0 shape {tuple(x0.shape)}")
-    return extract(schedule.sqrt_alphas_cumprod, t, x0) * x0 + extract(schedule.sqrt_one_minus_alphas_cumprod, t, x0) * noise
+    return (
+        extract(schedule.sqrt_alphas_cumprod, t, x0) * x0
+        + extract(schedule.sqrt_one_minus_alphas_cumprod, t, x0) * noise
+    )
 
 
 def q_mean_variance(schedule: NoiseSchedule, x0: Tensor, t: Tensor) -> tuple[Tensor, Tensor]:
@@ -47,7 +50,9 @@ def q_mean_variance(schedule: NoiseSchedule, x0: Tensor, t: Tensor) -> tuple[Ten
     return extract(schedule.sqrt_alphas_cumprod, t, x0) * x0, extract(1.0 - schedule.alphas_cumprod, t, x0)
 
 
-def q_posterior_mean_variance(schedule: NoiseSchedule, x0: Tensor, x_t: Tensor, t: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+def q_posterior_mean_variance(
+    schedule: NoiseSchedule, x0: Tensor, x_t: Tensor, t: Tensor
+) -> tuple[Tensor, Tensor, Tensor]:
     """Mean, variance and clipped log-variance of q(x_{t-1} | x_t, x_0)."""
     mean = extract(schedule.posterior_mean_coef1, t, x_t) * x0 + extract(schedule.posterior_mean_coef2, t, x_t) * x_t
     variance = extract(schedule.posterior_variance, t, x_t)

@@ -19,9 +19,9 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from augment.diffusion.gaussian import DenoiseFn, predict_eps_from_x0, q_posterior_mean_variance, q_sample
-from augment.diffusion.schedule import NoiseSchedule, extract
-from schemas.errors import MotionDataError
+from motionaug.augment.diffusion.gaussian import DenoiseFn, predict_eps_from_x0, q_posterior_mean_variance, q_sample
+from motionaug.augment.diffusion.schedule import NoiseSchedule, extract
+from motionaug.schemas.errors import MotionDataError
 
 
 @dataclass(frozen=True)
@@ -72,9 +72,7 @@ class SamplerStep:
 ProgressFn = Callable[[SamplerStep], None]
 
 
-def bind_model(
-    model: nn.Module, cond: Tensor | dict[str, Tensor] | None, mask: Tensor | None = None
-) -> DenoiseFn:
+def bind_model(model: nn.Module, cond: Tensor | dict[str, Tensor] | None, mask: Tensor | None = None) -> DenoiseFn:
     """A ``DenoiseFn`` calling ``model(x_t, t, cond, mask, force_uncond=uncond)`` (the MDM forward signature).
 
     The prediction is cast back to x_t's dtype so that a bf16-autocast network leaves the sampler state in fp32.
@@ -112,7 +110,9 @@ def _predict_x0(
     return x0_hat
 
 
-def _noise(shape: torch.Size, like: Tensor, generator: torch.Generator | None, inpaint: tuple[Tensor, Tensor] | None) -> Tensor:
+def _noise(
+    shape: torch.Size, like: Tensor, generator: torch.Generator | None, inpaint: tuple[Tensor, Tensor] | None
+) -> Tensor:
     """Standard normal noise drawn on CPU from ``generator`` (device-independent), zero on inpainted entries."""
     z = torch.randn(shape, generator=generator, dtype=like.dtype).to(like.device)
     if inpaint is not None:
@@ -120,9 +120,7 @@ def _noise(shape: torch.Size, like: Tensor, generator: torch.Generator | None, i
     return z
 
 
-def ddpm_step(
-    schedule: NoiseSchedule, x_t: Tensor, x0_hat: Tensor, index: int, noise: Tensor | None
-) -> Tensor:
+def ddpm_step(schedule: NoiseSchedule, x_t: Tensor, x0_hat: Tensor, index: int, noise: Tensor | None) -> Tensor:
     """Ancestral step x_{t-1} = posterior mean + sqrt(beta_tilde) z (fixed-small variance; no noise at index 0)."""
     if index == 0:
         return x0_hat
@@ -159,7 +157,9 @@ def _inpaint_tensors(
     if inpaint is None:
         return None
     if inpaint.reference.shape != shape:
-        raise MotionDataError("InpaintSpec", f"reference shape {tuple(inpaint.reference.shape)} != sample {tuple(shape)}")
+        raise MotionDataError(
+            "InpaintSpec", f"reference shape {tuple(inpaint.reference.shape)} != sample {tuple(shape)}"
+        )
     return inpaint.mask().to(device), inpaint.reference.to(device=device, dtype=dtype)
 
 
@@ -244,7 +244,9 @@ def ddpm_sample(
     device: torch.device | str = "cpu",
 ) -> Tensor:
     """DDPM ancestral sampling (fixed-small variance), all 1000 steps unless ``steps`` respaces. Returns (B, T, D)."""
-    sched, x, n_run, inpaint_t = _prepare(schedule, steps, shape, start_step, x_start, noise, inpaint, generator, dtype, device)
+    sched, x, n_run, inpaint_t = _prepare(
+        schedule, steps, shape, start_step, x_start, noise, inpaint, generator, dtype, device
+    )
 
     def update(x_t: Tensor, x0_hat: Tensor, index: int, gen: torch.Generator | None) -> Tensor:
         z = _noise(x_t.shape, x_t, gen, inpaint_t) if index > 0 else None
@@ -271,8 +273,13 @@ def ddim_sample(
     dtype: torch.dtype = torch.float32,
     device: torch.device | str = "cpu",
 ) -> Tensor:
-    """DDIM sampling over ``steps`` respaced timesteps (eta=0: deterministic given the initial noise). Returns (B, T, D)."""
-    sched, x, n_run, inpaint_t = _prepare(schedule, steps, shape, start_step, x_start, noise, inpaint, generator, dtype, device)
+    """DDIM sampling over ``steps`` respaced timesteps (eta=0: deterministic given the initial noise).
+
+    Returns (B, T, D).
+    """
+    sched, x, n_run, inpaint_t = _prepare(
+        schedule, steps, shape, start_step, x_start, noise, inpaint, generator, dtype, device
+    )
 
     def update(x_t: Tensor, x0_hat: Tensor, index: int, gen: torch.Generator | None) -> Tensor:
         z = _noise(x_t.shape, x_t, gen, inpaint_t) if index > 0 and eta > 0 else None

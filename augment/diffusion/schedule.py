@@ -12,7 +12,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from schemas.errors import MotionDataError
+from motionaug.schemas.errors import MotionDataError
 
 NUM_TRAIN_TIMESTEPS = 1000
 
@@ -127,7 +127,7 @@ class NoiseSchedule:
         return len(self) != self.num_train_timesteps
 
     def respace(self, spec: str | int | Sequence[int]) -> NoiseSchedule:
-        """A schedule over the kept timesteps (``space_timesteps`` semantics) whose alpha_bar matches the original there.
+        """A schedule over the kept timesteps (``space_timesteps`` semantics), alpha_bar equal to the original's there.
 
         The new betas are ``1 - alpha_bar[t_k] / alpha_bar[t_{k-1}]`` (MDM's SpacedDiffusion), so q(x_t | x_0)
         is unchanged at every kept timestep.

@@ -1,30 +1,47 @@
 """The contract between a style-transfer method and the workflow that fans it out.
 
-A method learns a style once (``prepare`` -> an artefact folder: ``weights.safetensors`` +
-``artifact.json``), then any worker loads that artefact once (``load``) and stylizes batches of clips
-(``StyleModel.transfer``). Artefacts are plain files so the workflow can move them between machines.
+Every method declares the same steps on ``StyleTransferMethod``; the workflow asks, it never guesses:
+
+- ``Params``: the pydantic model of its parameters, validated when the config is checked (before Ray starts);
+- ``train`` (optional, ``trains = True``): once per run, the models every style shares, written to one folder
+  (on-the-fly: the T2M prior and motion encoder; Style-ERD and UMSD: their network), reused by later runs
+  when ``is_trained`` says the folder already holds them;
+- ``check_style``: a config-time check of one style against what the method can do;
+- ``prepare``: once per style, an artefact folder (``artifact.json`` + files) from the style's examples
+  (on-the-fly: a fine-tuned prior; stats: the example statistics; methods without per-style learning keep the
+  default, which records the style);
+- ``load`` + ``StyleModel.transfer``: a worker loads an artefact once and stylizes batches of clips.
+
+Artefacts are plain files so the workflow can move them between machines.
 """
 
 from __future__ import annotations
 
+import json
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, Protocol
 
 import numpy as np
+from pydantic import BaseModel, ValidationError
 
-from augment.clip import MotionClip
-from augment.corpus.rejects import Reject
-from schemas.captions import Caption
-from schemas.styles import StyleSpec
+from motionaug.augment.corpus.clip import MotionClip
+from motionaug.augment.corpus.rejects import Reject
+from motionaug.augment.io import atomic_write_text
+from motionaug.schemas.captions import Caption
+from motionaug.schemas.errors import MotionDataError, first_error
+from motionaug.schemas.styles import StyleSpec
 
 ARTIFACT_JSON = "artifact.json"
 ARTIFACT_WEIGHTS = "weights.safetensors"
 
 Progress = Callable[[int, int, dict[str, float]], None]
 """``progress(step, total, metrics)``: called by long loops so callers can draw bars."""
+
+TrainProgress = Callable[[str, int, int, dict[str, float]], None]
+"""``progress(stage, step, total, metrics)``: the same for a training with several stages."""
 
 
 @dataclass
@@ -38,6 +55,15 @@ class TransferOutput:
     scores: dict[str, float] = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class TrainingSpec:
+    """What a run asks of a method's ``train``: the model size, preset overrides and the seed."""
+
+    size: str
+    options: Mapping[str, Any]
+    seed: int
+
+
 class StyleModel(Protocol):
     """A loaded style artefact; stays warm in a worker and serves many batches."""
 
@@ -49,27 +75,72 @@ class StyleModel(Protocol):
 
 
 class StyleTransferMethod(ABC):
-    """A way of learning a style from examples and applying it to clips."""
+    """A way of learning styles and applying them to clips."""
 
     name: ClassVar[str]
+    Params: ClassVar[type[BaseModel]]
+    trains: ClassVar[bool] = False
+    """Whether the method has a once-per-run ``train`` step."""
+    content_pool: ClassVar[int] = 0
+    """How many content clips ``prepare`` learns from (0: none). The plan chooses them, whatever the unit size."""
+    smoke_params: ClassVar[dict[str, Any]] = {}
+    """Params for a seconds-long run of every step (the contract test, ``motionaug demo --size tiny``)."""
 
-    @abstractmethod
+    def __init__(self, params: Mapping[str, Any] | BaseModel | None = None) -> None:
+        self.params = self.parse_params(params)
+
+    @classmethod
+    def parse_params(cls, raw: Mapping[str, Any] | BaseModel | None) -> BaseModel:
+        """The validated params; a bad one is one line naming ``method.params.<field>``."""
+        if isinstance(raw, cls.Params):
+            return raw
+        data = raw.model_dump() if isinstance(raw, BaseModel) else dict(raw or {})
+        try:
+            return cls.Params.model_validate(data)
+        except ValidationError as err:
+            where, message = first_error(err, "")
+            raise MotionDataError(f"config method.params.{where}".rstrip("."), f"{cls.name}: {message}") from None
+
+    # ---- once per run ---------------------------------------------------------------------------------
+
+    def check_training(self, spec: TrainingSpec) -> None:
+        """Config-time check of what ``train`` would be asked (before Ray starts); default: nothing to check."""
+
+    def is_trained(self, folder: Path) -> bool:
+        """Whether ``folder`` already holds this method's trained models (then they are reused as they are)."""
+        return False
+
+    def train(self, corpus: Path, out: Path, spec: TrainingSpec, progress: TrainProgress | None = None) -> Path:
+        """Train the models every style shares on the labelled ``corpus`` into ``out``; returns the folder."""
+        raise NotImplementedError(f"method {self.name!r} has no train step (trains = False)")
+
+    # ---- once per style -------------------------------------------------------------------------------
+
+    def check_style(self, style: StyleSpec, trained: Path | None) -> None:
+        """Config-time check of one style; ``trained`` is the trained folder when it exists already."""
+
     def prepare(
         self,
         style: StyleSpec,
         examples: Sequence[MotionClip],
-        base_dir: Path,
-        corpus: Sequence[MotionClip],
-        out_dir: Path,
+        trained: Path | None,
+        content: Sequence[MotionClip],
+        out: Path,
         seed: int | None = None,
         progress: Progress | None = None,
     ) -> Path:
-        """Learn ``style`` from its example clips; write the artefact under ``out_dir`` and return it.
+        """Learn ``style`` from its examples (and ``content``, the plan's pool); write the artefact under ``out``.
 
-        ``base_dir`` holds the pre-trained base models; ``corpus`` is the content the style should
-        generalise to (the semantic loss draws batches from it). ``seed``: None uses the method's own params.
+        ``seed`` None: the method's params' own. The default records the style only, for methods that condition
+        on it at transfer time.
         """
+        if not examples:
+            raise MotionDataError(f"style {style.name!r}", "no example clips")
+        out.mkdir(parents=True, exist_ok=True)
+        record = {"method": self.name, "style": style.model_dump(mode="json"), "examples": [c.id for c in examples]}
+        atomic_write_text(out / ARTIFACT_JSON, json.dumps(record, indent=1, sort_keys=True) + "\n")
+        return out
 
     @abstractmethod
-    def load(self, artifact_dir: Path, base_dir: Path, **options: Any) -> StyleModel:
-        """Load an artefact written by ``prepare`` (and the base models it needs)."""
+    def load(self, artifact: Path, trained: Path | None) -> StyleModel:
+        """Load an artefact written by ``prepare`` (and the trained models it needs)."""

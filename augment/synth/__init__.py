@@ -4,13 +4,24 @@ The product's embedded default dataset: every clip is a ``ClipSpec`` that render
 same content can be rendered in any style (paired ground truth for style transfer).
 """
 
-from augment.synth.animator import ClipSpec, RenderedClip, render, sample_spec
-from augment.synth.captions import make_captions
-from augment.synth.contents import CONTENTS
-from augment.synth.corpus import CorpusSummary, generate_corpus, read_labels
-from augment.synth.styles import STYLE_WORDS, STYLES, StyleWords, style_params
+from motionaug.augment.synth.animator import ClipSpec, RenderedClip, render, sample_spec
+from motionaug.augment.synth.captions import make_captions
+from motionaug.augment.synth.contents import CONTENTS
+from motionaug.augment.synth.corpus import CorpusSummary, generate_corpus, read_labels
+from motionaug.augment.synth.styles import STYLE_WORDS, STYLES, StyleWords, style_params
 
 __all__ = [
-    "CONTENTS", "STYLES", "STYLE_WORDS", "ClipSpec", "CorpusSummary", "RenderedClip", "StyleWords",
-    "generate_corpus", "make_captions", "read_labels", "render", "sample_spec", "style_params",
-]  # fmt: skip
+    "CONTENTS",
+    "STYLES",
+    "STYLE_WORDS",
+    "ClipSpec",
+    "CorpusSummary",
+    "RenderedClip",
+    "StyleWords",
+    "generate_corpus",
+    "make_captions",
+    "read_labels",
+    "render",
+    "sample_spec",
+    "style_params",
+]

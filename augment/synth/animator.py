@@ -16,30 +16,73 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from schemas.errors import MotionDataError
-from augment.synth import contents as C
-from augment.synth.contents import CONTENTS, ContentContext, ContentMotion
-from augment.synth.styles import STYLES, StyleParams, style_params
-from schemas.skeleton import T2M
+from motionaug.augment.synth import contents as C
+from motionaug.augment.synth.contents import CONTENTS, ContentContext, ContentMotion
+from motionaug.augment.synth.styles import STYLES, StyleParams, style_params
+from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.skeleton import T2M
 
 FPS = 20.0
 
-# Bone lengths (metres, parent -> joint) from /work/shared/data/humanml3d_sample/joints/000021.npy
+# Bone lengths (metres, parent -> joint) from HumanML3D's reference skeleton clip joints/000021.npy
 # frame 0, first 22 joints (HumanML3D's reference skeleton), left/right averaged so mirrors agree.
-BONE_LENGTHS = np.array([
-    0.0, 0.1065, 0.1065, 0.1316, 0.3919, 0.3919, 0.1432, 0.4290, 0.4290, 0.0574, 0.1464,
-    0.1464, 0.2194, 0.1405, 0.1405, 0.1030, 0.1273, 0.1273, 0.2600, 0.2600, 0.2680, 0.2680,
-])  # fmt: skip
+BONE_LENGTHS = np.array(
+    [
+        0.0,
+        0.1065,
+        0.1065,
+        0.1316,
+        0.3919,
+        0.3919,
+        0.1432,
+        0.4290,
+        0.4290,
+        0.0574,
+        0.1464,
+        0.1464,
+        0.2194,
+        0.1405,
+        0.1405,
+        0.1030,
+        0.1273,
+        0.1273,
+        0.2600,
+        0.2600,
+        0.2680,
+        0.2680,
+    ]
+)
 
 # Anatomical rest directions (unit, body frame). T2M.raw_offsets only name the axis each bone is
 # measured along; real bodies have hips below-outside the pelvis, collars rising to the shoulders,
 # the head above the neck and the toes below the ankle, which this rest pose keeps.
-_REST = np.array([
-    (0, 0, 0), (0.6, -0.8, 0), (-0.6, -0.8, 0), (0, 1, -0.1), (0, -1, 0), (0, -1, 0), (0, 1, 0),
-    (0, -1, 0), (0, -1, 0), (0, 1, 0), (0, -0.35, 0.94), (0, -0.35, 0.94), (0, 1, 0.05),
-    (0.5, 0.85, 0), (-0.5, 0.85, 0), (0, 0.87, 0.5), (1, -0.1, 0), (-1, -0.1, 0), (0, -1, 0),
-    (0, -1, 0), (0, -1, 0), (0, -1, 0),
-], dtype=float)  # fmt: skip
+_REST = np.array(
+    [
+        (0, 0, 0),
+        (0.6, -0.8, 0),
+        (-0.6, -0.8, 0),
+        (0, 1, -0.1),
+        (0, -1, 0),
+        (0, -1, 0),
+        (0, 1, 0),
+        (0, -1, 0),
+        (0, -1, 0),
+        (0, 1, 0),
+        (0, -0.35, 0.94),
+        (0, -0.35, 0.94),
+        (0, 1, 0.05),
+        (0.5, 0.85, 0),
+        (-0.5, 0.85, 0),
+        (0, 0.87, 0.5),
+        (1, -0.1, 0),
+        (-1, -0.1, 0),
+        (0, -1, 0),
+        (0, -1, 0),
+        (0, -1, 0),
+        (0, -1, 0),
+    ],
+    dtype=float,
+)
 REST_DIRECTIONS = _REST / np.maximum(np.linalg.norm(_REST, axis=1, keepdims=True), 1e-9)
 PARENTS = tuple(T2M.parents)
 FOOT_JOINTS = (C.L_ANKLE, C.R_ANKLE, C.L_FOOT, C.R_FOOT)
@@ -88,7 +131,7 @@ class ClipSpec(BaseModel):
     def n_frames(self) -> int:
         return int(round(self.duration * self.fps))
 
-    def with_style(self, style: str, intensity: float | None = None) -> "ClipSpec":
+    def with_style(self, style: str, intensity: float | None = None) -> ClipSpec:
         """The same content (path, duration, bones, phase) in another style."""
         return self.model_validate(
             self.model_dump() | {"style": style, "intensity": self.intensity if intensity is None else intensity}
@@ -98,7 +141,7 @@ class ClipSpec(BaseModel):
         return self.model_dump_json()
 
     @classmethod
-    def from_json(cls, text: str) -> "ClipSpec":
+    def from_json(cls, text: str) -> ClipSpec:
         try:
             return cls.model_validate(json.loads(text))
         except (ValueError, TypeError) as err:
@@ -257,7 +300,7 @@ def _root_path(body: np.ndarray, m: ContentMotion, spec: ClipSpec) -> tuple[np.n
     The body-frame displacement of the planted foot, reversed, is the root's step; flights use the
     content's air velocity. Heading turns with distance walked (curves) or on the spot (turns).
     """
-    n, dt = body.shape[0], 1.0 / spec.fps
+    dt = 1.0 / spec.fps
     feet = body[:, [C.L_FOOT, C.R_FOOT]][:, :, [0, 2]]  # (T, 2 feet, xz)
     w = _stance_weights(body, m)[:-1]  # (T-1, 2)
     step_body = -(w[:, :, None] * (feet[1:] - feet[:-1])).sum(axis=1)
@@ -283,8 +326,15 @@ def content_motion(spec: ClipSpec, style: StyleParams | None = None) -> tuple[Co
     st = style or style_params(spec.style, spec.intensity)
     phase, rate = phase_clock(spec, st)
     ctx = ContentContext(
-        phase=phase, rate=rate, fps=spec.fps, style=st, amplitude=spec.amplitude, speed=spec.speed,
-        side=1 if spec.side == "left" else -1, curvature=spec.curvature, travel=spec.travel,
+        phase=phase,
+        rate=rate,
+        fps=spec.fps,
+        style=st,
+        amplitude=spec.amplitude,
+        speed=spec.speed,
+        side=1 if spec.side == "left" else -1,
+        curvature=spec.curvature,
+        travel=spec.travel,
     )
     m = CONTENTS[spec.content].fn(ctx)
     apply_posture(m, st, phase, np.random.default_rng(spec.seed))

@@ -11,38 +11,84 @@ from __future__ import annotations
 
 import numpy as np
 
-from schemas.errors import MotionDataError
-from augment.synth.animator import ClipSpec
-from augment.synth.styles import STYLE_WORDS
-from schemas.captions import Caption
+from motionaug.augment.synth.animator import ClipSpec
+from motionaug.augment.synth.styles import STYLE_WORDS
+from motionaug.schemas.captions import Caption
+from motionaug.schemas.errors import MotionDataError
 
 CAPTIONS_PER_CLIP = 3
 
 # Verb phrases after the subject, third person singular. {side} is "left" or "right".
 TEMPLATES: dict[str, tuple[str, ...]] = {
-    "walk": ("walks forward", "walks straight ahead", "is walking forward", "takes several steps forward",
-             "strolls forward", "walks ahead"),
+    "walk": (
+        "walks forward",
+        "walks straight ahead",
+        "is walking forward",
+        "takes several steps forward",
+        "strolls forward",
+        "walks ahead",
+    ),
     "run": ("runs forward", "jogs forward", "is running forward", "runs straight ahead", "is jogging ahead"),
-    "walk_backward": ("walks backwards", "takes steps backwards", "is walking backwards", "moves backwards",
-                      "walks backward"),
-    "walk_curve": ("walks in a curve to the {side}", "walks forward and turns {side}", "walks along a curved path",
-                   "is walking in a curve", "walks in a circle to the {side}"),
-    "sidestep": ("sidesteps to the {side}", "steps sideways to the {side}", "walks sideways to the {side}",
-                 "shuffles sideways", "moves sideways to the {side}"),
-    "turn": ("turns around", "turns around to the {side}", "turns on the spot", "turns to the {side}",
-             "steps in place and turns around"),
+    "walk_backward": (
+        "walks backwards",
+        "takes steps backwards",
+        "is walking backwards",
+        "moves backwards",
+        "walks backward",
+    ),
+    "walk_curve": (
+        "walks in a curve to the {side}",
+        "walks forward and turns {side}",
+        "walks along a curved path",
+        "is walking in a curve",
+        "walks in a circle to the {side}",
+    ),
+    "sidestep": (
+        "sidesteps to the {side}",
+        "steps sideways to the {side}",
+        "walks sideways to the {side}",
+        "shuffles sideways",
+        "moves sideways to the {side}",
+    ),
+    "turn": (
+        "turns around",
+        "turns around to the {side}",
+        "turns on the spot",
+        "turns to the {side}",
+        "steps in place and turns around",
+    ),
     "jump": ("jumps forward", "leaps forward", "jumps forward with both feet", "does a long jump"),
     "jump_in_place": ("jumps up and down", "jumps in place", "hops on the spot", "jumps straight up"),
-    "kick": ("kicks with the {side} leg", "kicks forward with the {side} foot", "does a kick with the {side} leg",
-             "kicks the air", "kicks forward"),
+    "kick": (
+        "kicks with the {side} leg",
+        "kicks forward with the {side} foot",
+        "does a kick with the {side} leg",
+        "kicks the air",
+        "kicks forward",
+    ),
     "punch": ("punches forward", "throws punches", "punches with both hands", "is boxing", "throws a few punches"),
-    "wave": ("waves with the {side} hand", "raises the {side} hand and waves", "waves hello",
-             "waves the {side} arm", "is waving"),
-    "raise_hands": ("raises both hands", "raises both arms above the head", "lifts both hands up",
-                    "puts both hands in the air", "raises both arms"),
-    "squat": ("squats down", "does a squat", "squats and stands up", "bends the knees and squats",
-              "squats down and stands back up"),
-}  # fmt: skip
+    "wave": (
+        "waves with the {side} hand",
+        "raises the {side} hand and waves",
+        "waves hello",
+        "waves the {side} arm",
+        "is waving",
+    ),
+    "raise_hands": (
+        "raises both hands",
+        "raises both arms above the head",
+        "lifts both hands up",
+        "puts both hands in the air",
+        "raises both arms",
+    ),
+    "squat": (
+        "squats down",
+        "does a squat",
+        "squats and stands up",
+        "bends the knees and squats",
+        "squats down and stands back up",
+    ),
+}
 
 SUBJECTS = ("a person", "a man", "someone", "the person", "a woman")
 ADJ_NOUNS = ("person", "man", "woman")
@@ -51,26 +97,121 @@ ADJ_NOUNS = ("person", "man", "woman")
 LEXICON: dict[str, tuple[str, str]] = {
     **{w: (w, "DET") for w in ("a", "an", "the", "both")},
     **{w: (w, "ADP") for w in ("in", "to", "along", "with", "like", "on", "above")},
-    **{w: (w, "ADV") for w in ("forward", "straight", "ahead", "backwards", "backward", "sideways", "around", "up",
-                               "down", "back", "out", "proudly", "sadly", "playfully", "angrily", "confidently",
-                               "sneakily")},
-    **{w: (w, "ADJ") for w in ("left", "right", "curved", "several", "few", "long", "proud", "depressed", "sad", "old",
-                               "elderly", "childlike", "little", "angry", "sneaky", "strutting")},
-    **{w: (w, "NOUN") for w in ("person", "man", "woman", "way", "curve", "circle", "path", "kick", "squat", "leg",
-                                "foot", "hand", "arm", "head", "spot", "air", "place", "chest", "pride", "anger",
-                                "strut", "swagger", "child", "kid", "thief", "tiptoe", "step", "jump")},
-    "steps": ("step", "NOUN"), "feet": ("foot", "NOUN"), "hands": ("hand", "NOUN"), "arms": ("arm", "NOUN"),
-    "punches": ("punch", "NOUN"), "knees": ("knee", "NOUN"),
-    "someone": ("someone", "PRON"), "hello": ("hello", "INTJ"), "and": ("and", "CCONJ"), "is": ("be", "AUX"),
-    "walks": ("walk", "VERB"), "walking": ("walk", "VERB"), "runs": ("run", "VERB"), "running": ("run", "VERB"),
-    "jogs": ("jog", "VERB"), "jogging": ("jog", "VERB"), "takes": ("take", "VERB"), "strolls": ("stroll", "VERB"),
-    "moves": ("move", "VERB"), "turns": ("turn", "VERB"), "sidesteps": ("sidestep", "VERB"),
-    "shuffles": ("shuffle", "VERB"), "jumps": ("jump", "VERB"), "leaps": ("leap", "VERB"), "hops": ("hop", "VERB"),
-    "kicks": ("kick", "VERB"), "does": ("do", "VERB"), "throws": ("throw", "VERB"), "boxing": ("box", "VERB"),
-    "waves": ("wave", "VERB"), "waving": ("wave", "VERB"), "raises": ("raise", "VERB"), "lifts": ("lift", "VERB"),
-    "puts": ("put", "VERB"), "squats": ("squat", "VERB"), "stands": ("stand", "VERB"), "bends": ("bend", "VERB"),
+    **{
+        w: (w, "ADV")
+        for w in (
+            "forward",
+            "straight",
+            "ahead",
+            "backwards",
+            "backward",
+            "sideways",
+            "around",
+            "up",
+            "down",
+            "back",
+            "out",
+            "proudly",
+            "sadly",
+            "playfully",
+            "angrily",
+            "confidently",
+            "sneakily",
+        )
+    },
+    **{
+        w: (w, "ADJ")
+        for w in (
+            "left",
+            "right",
+            "curved",
+            "several",
+            "few",
+            "long",
+            "proud",
+            "depressed",
+            "sad",
+            "old",
+            "elderly",
+            "childlike",
+            "little",
+            "angry",
+            "sneaky",
+            "strutting",
+        )
+    },
+    **{
+        w: (w, "NOUN")
+        for w in (
+            "person",
+            "man",
+            "woman",
+            "way",
+            "curve",
+            "circle",
+            "path",
+            "kick",
+            "squat",
+            "leg",
+            "foot",
+            "hand",
+            "arm",
+            "head",
+            "spot",
+            "air",
+            "place",
+            "chest",
+            "pride",
+            "anger",
+            "strut",
+            "swagger",
+            "child",
+            "kid",
+            "thief",
+            "tiptoe",
+            "step",
+            "jump",
+        )
+    },
+    "steps": ("step", "NOUN"),
+    "feet": ("foot", "NOUN"),
+    "hands": ("hand", "NOUN"),
+    "arms": ("arm", "NOUN"),
+    "punches": ("punch", "NOUN"),
+    "knees": ("knee", "NOUN"),
+    "someone": ("someone", "PRON"),
+    "hello": ("hello", "INTJ"),
+    "and": ("and", "CCONJ"),
+    "is": ("be", "AUX"),
+    "walks": ("walk", "VERB"),
+    "walking": ("walk", "VERB"),
+    "runs": ("run", "VERB"),
+    "running": ("run", "VERB"),
+    "jogs": ("jog", "VERB"),
+    "jogging": ("jog", "VERB"),
+    "takes": ("take", "VERB"),
+    "strolls": ("stroll", "VERB"),
+    "moves": ("move", "VERB"),
+    "turns": ("turn", "VERB"),
+    "sidesteps": ("sidestep", "VERB"),
+    "shuffles": ("shuffle", "VERB"),
+    "jumps": ("jump", "VERB"),
+    "leaps": ("leap", "VERB"),
+    "hops": ("hop", "VERB"),
+    "kicks": ("kick", "VERB"),
+    "does": ("do", "VERB"),
+    "throws": ("throw", "VERB"),
+    "boxing": ("box", "VERB"),
+    "waves": ("wave", "VERB"),
+    "waving": ("wave", "VERB"),
+    "raises": ("raise", "VERB"),
+    "lifts": ("lift", "VERB"),
+    "puts": ("put", "VERB"),
+    "squats": ("squat", "VERB"),
+    "stands": ("stand", "VERB"),
+    "bends": ("bend", "VERB"),
     "hanging": ("hang", "VERB"),
-}  # fmt: skip
+}
 # "steps" is a noun after "takes"/"several" ("takes several steps") and a verb elsewhere ("steps sideways").
 _NOUN_STEPS_AFTER = frozenset({"takes", "several"})
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from augment.synth.styles import StyleParams
+from motionaug.augment.synth.styles import StyleParams
 
 # t2m joint indices (SMPL order)
 PELVIS, L_HIP, R_HIP, SPINE1, L_KNEE, R_KNEE, SPINE2, L_ANKLE, R_ANKLE, SPINE3 = range(10)
@@ -65,8 +65,12 @@ class ContentMotion:
 
 def empty_motion(n: int) -> ContentMotion:
     return ContentMotion(
-        angles=np.zeros((n, 22, 3)), air=np.zeros(n), ground=np.ones(n, dtype=bool), air_velocity=np.zeros((n, 2)),
-        arm_posture=np.ones(n), leg_posture=np.ones(n),
+        angles=np.zeros((n, 22, 3)),
+        air=np.zeros(n),
+        ground=np.ones(n, dtype=bool),
+        air_velocity=np.zeros((n, 2)),
+        arm_posture=np.ones(n),
+        leg_posture=np.ones(n),
     )
 
 
@@ -129,9 +133,7 @@ def flat_feet(a: np.ndarray) -> None:
 # --- contents ---------------------------------------------------------------------------------
 
 
-def _legs_cycle(
-    ctx: ContentContext, phase: np.ndarray, hip_amp: float, knee_amp: float, motion: ContentMotion
-) -> None:
+def _legs_cycle(ctx: ContentContext, phase: np.ndarray, hip_amp: float, knee_amp: float, motion: ContentMotion) -> None:
     """Alternating leg swing: the left leg is forward at phase 0, the right at 0.5."""
     a, st = motion.angles, ctx.style
     for hip, knee, ankle, offset in ((L_HIP, L_KNEE, L_ANKLE, 0.0), (R_HIP, R_KNEE, R_ANKLE, 0.5)):

@@ -16,12 +16,12 @@ from pathlib import Path
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
-from augment.clip import MotionClip
-from schemas.errors import MotionDataError
-from augment.synth.animator import ClipSpec, render, sample_spec
-from augment.synth.captions import make_captions
-from augment.synth.contents import CONTENTS
-from augment.synth.styles import STYLES
+from motionaug.augment.corpus.clip import MotionClip
+from motionaug.augment.synth.animator import ClipSpec, render, sample_spec
+from motionaug.augment.synth.captions import make_captions
+from motionaug.augment.synth.contents import CONTENTS
+from motionaug.augment.synth.styles import STYLES
+from motionaug.schemas.errors import MotionDataError
 
 SPLIT_FRACTIONS = (("train", 0.8), ("val", 0.1), ("test", 0.1))
 SOURCE = "synth"
@@ -96,13 +96,19 @@ def clip_id(index: int) -> str:
 
 def spec_to_clip(spec: ClipSpec, clip_id_: str) -> MotionClip:
     """Render one spec and extract its HumanML3D features; the spec goes in ``meta['spec']``."""
-    from augment.features import extract_features
+    from motionaug.augment.motion.features import extract_features
 
     rendered = render(spec)
     motion = extract_features(rendered.joints, source=f"synthetic clip {clip_id_}")
     return MotionClip(
-        id=clip_id_, motion=motion, captions=make_captions(spec), fps=spec.fps, content=spec.content,
-        style=spec.style, source=SOURCE, meta={"spec": spec.to_json()},
+        id=clip_id_,
+        motion=motion,
+        captions=make_captions(spec),
+        fps=spec.fps,
+        content=spec.content,
+        style=spec.style,
+        source=SOURCE,
+        meta={"spec": spec.to_json()},
     )
 
 
@@ -115,8 +121,8 @@ def generate_corpus(
     neutral_fraction: float = 0.4,
 ) -> CorpusSummary:
     """Render ``n_clips`` synthetic clips into a HumanML3D folder with Mean/Std and labels.jsonl."""
-    from augment.corpus.humanml3d import write_humanml3d
-    from augment.features import compute_mean_std
+    from motionaug.augment.corpus.humanml3d import write_humanml3d
+    from motionaug.augment.motion.features import compute_mean_std
 
     start = time.perf_counter()
     root = Path(out_dir)
@@ -142,15 +148,21 @@ def generate_corpus(
     write_humanml3d(clips(), root, splits=splits)
     compute_mean_std(train_features).save(root)
     return CorpusSummary(
-        out_dir=str(root), n_clips=len(specs), seed=seed, splits={k: len(v) for k, v in splits.items()},
-        styles=dict(Counter(s.style for s in specs)), contents=dict(Counter(s.content for s in specs)),
-        frames=frames, seconds=time.perf_counter() - start,
+        out_dir=str(root),
+        n_clips=len(specs),
+        seed=seed,
+        splits={k: len(v) for k, v in splits.items()},
+        styles=dict(Counter(s.style for s in specs)),
+        contents=dict(Counter(s.content for s in specs)),
+        frames=frames,
+        seconds=time.perf_counter() - start,
     )
 
 
 def read_labels(root: str | Path) -> list[dict]:
     """Per clip: id, split, content, style, intensity and spec (dict), from the corpus's labels sidecar."""
-    from augment.corpus.humanml3d import LABELS_FILE, read_labels as read_sidecar
+    from motionaug.augment.corpus.humanml3d import LABELS_FILE
+    from motionaug.augment.corpus.humanml3d import read_labels as read_sidecar
 
     records = read_sidecar(Path(root))
     if not records:
@@ -158,10 +170,16 @@ def read_labels(root: str | Path) -> list[dict]:
     out = []
     for clip_id_, record in records.items():
         spec = json.loads(record["meta"]["spec"])
-        out.append({
-            "id": clip_id_, "split": record["meta"].get("split"), "content": record["content"],
-            "style": record["style"], "intensity": spec["intensity"], "spec": spec,
-        })  # fmt: skip
+        out.append(
+            {
+                "id": clip_id_,
+                "split": record["meta"].get("split"),
+                "content": record["content"],
+                "style": record["style"],
+                "intensity": spec["intensity"],
+                "spec": spec,
+            }
+        )
     return out
 
 

@@ -10,8 +10,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields, replace
 
-from schemas.errors import MotionDataError
-from schemas.styles import StyleWords
+from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.styles import StyleWords
 
 
 @dataclass(frozen=True)
@@ -56,38 +56,112 @@ NEUTRAL = StyleParams()
 STYLES: dict[str, StyleParams] = {
     "neutral": NEUTRAL,
     "proud": StyleParams(
-        spine_lean=-0.10, chest=-0.22, head_pitch=-0.30, shoulders_forward=-0.30, arm_out=0.22,
-        step=1.15, arm_swing=1.5, knee_lift=1.0, gesture=1.1, tempo=0.82, swagger=0.05,
+        spine_lean=-0.10,
+        chest=-0.22,
+        head_pitch=-0.30,
+        shoulders_forward=-0.30,
+        arm_out=0.22,
+        step=1.15,
+        arm_swing=1.5,
+        knee_lift=1.0,
+        gesture=1.1,
+        tempo=0.82,
+        swagger=0.05,
     ),
     "depressed": StyleParams(
-        spine_lean=0.12, chest=0.42, head_pitch=0.75, shoulders_forward=0.25, shrug=-0.10, arm_out=0.05,
-        step=0.5, arm_swing=0.15, knee_lift=0.5, gesture=0.55, tempo=0.62, hesitation=0.35,
+        spine_lean=0.12,
+        chest=0.42,
+        head_pitch=0.75,
+        shoulders_forward=0.25,
+        shrug=-0.10,
+        arm_out=0.05,
+        step=0.5,
+        arm_swing=0.15,
+        knee_lift=0.5,
+        gesture=0.55,
+        tempo=0.62,
+        hesitation=0.35,
         hesitation_period=2.1,
     ),
     "old": StyleParams(
-        spine_lean=0.38, chest=0.12, head_pitch=-0.25, shoulders_forward=0.12, arm_forward=0.30,
-        elbow_bend=0.55, knee_bend=0.55, hip_bend=0.22, stance_width=0.10, step=0.45, arm_swing=0.35,
-        knee_lift=0.4, gesture=0.6, tempo=0.7, hesitation=0.5, hesitation_period=1.3,
+        spine_lean=0.38,
+        chest=0.12,
+        head_pitch=-0.25,
+        shoulders_forward=0.12,
+        arm_forward=0.30,
+        elbow_bend=0.55,
+        knee_bend=0.55,
+        hip_bend=0.22,
+        stance_width=0.10,
+        step=0.45,
+        arm_swing=0.35,
+        knee_lift=0.4,
+        gesture=0.6,
+        tempo=0.7,
+        hesitation=0.5,
+        hesitation_period=1.3,
     ),
     "childlike": StyleParams(
-        spine_lean=0.0, head_pitch=-0.08, head_roll=0.10, arm_out=0.25, elbow_bend=0.2,
-        step=1.25, arm_swing=2.2, knee_lift=1.5, gesture=1.35, tempo=1.45, bounce=0.045,
+        spine_lean=0.0,
+        head_pitch=-0.08,
+        head_roll=0.10,
+        arm_out=0.25,
+        elbow_bend=0.2,
+        step=1.25,
+        arm_swing=2.2,
+        knee_lift=1.5,
+        gesture=1.35,
+        tempo=1.45,
+        bounce=0.045,
         head_bob=0.12,
     ),
     "angry": StyleParams(
-        spine_lean=0.28, chest=0.05, head_pitch=0.20, shrug=0.25, shoulders_forward=0.15,
-        arm_out=0.30, elbow_bend=1.25, arm_forward=0.25, step=1.2, arm_swing=1.3, knee_lift=1.5,
-        gesture=1.3, tempo=1.28, sharpness=0.75,
+        spine_lean=0.28,
+        chest=0.05,
+        head_pitch=0.20,
+        shrug=0.25,
+        shoulders_forward=0.15,
+        arm_out=0.30,
+        elbow_bend=1.25,
+        arm_forward=0.25,
+        step=1.2,
+        arm_swing=1.3,
+        knee_lift=1.5,
+        gesture=1.3,
+        tempo=1.28,
+        sharpness=0.75,
     ),
     "strutting": StyleParams(
-        spine_lean=-0.15, chest=-0.08, head_pitch=-0.12, head_roll=-0.12, shoulders_forward=-0.12,
-        arm_out=0.12, step=1.15, arm_swing=1.6, knee_lift=1.1, gesture=1.1, tempo=0.95, sway=0.22,
-        swagger=0.32, head_bob=0.10,
+        spine_lean=-0.15,
+        chest=-0.08,
+        head_pitch=-0.12,
+        head_roll=-0.12,
+        shoulders_forward=-0.12,
+        arm_out=0.12,
+        step=1.15,
+        arm_swing=1.6,
+        knee_lift=1.1,
+        gesture=1.1,
+        tempo=0.95,
+        sway=0.22,
+        swagger=0.32,
+        head_bob=0.10,
     ),
     "sneaky": StyleParams(
-        spine_lean=0.35, head_pitch=-0.30, shrug=0.15, arm_forward=0.55, elbow_bend=1.5,
-        knee_bend=0.7, hip_bend=0.3, step=1.1, arm_swing=0.2, knee_lift=1.25, gesture=0.75,
-        tempo=0.6, hesitation=0.6, hesitation_period=1.8,
+        spine_lean=0.35,
+        head_pitch=-0.30,
+        shrug=0.15,
+        arm_forward=0.55,
+        elbow_bend=1.5,
+        knee_bend=0.7,
+        hip_bend=0.3,
+        step=1.1,
+        arm_swing=0.2,
+        knee_lift=1.25,
+        gesture=0.75,
+        tempo=0.6,
+        hesitation=0.6,
+        hesitation_period=1.8,
     ),
 }
 
@@ -117,11 +191,27 @@ def style_params(style: str, intensity: float = 1.0) -> StyleParams:
 
 
 STYLE_WORDS: dict[str, StyleWords] = {
-    "proud": StyleWords(adjective="proud", adverb="proudly", phrases=("in a proud way", "with pride", "with the chest out")),
-    "depressed": StyleWords(adjective="depressed", adverb="sadly", phrases=("in a depressed way", "like a sad person", "with the head hanging down")),
-    "old": StyleWords(adjective="old", adverb=None, phrases=("like an old person", "like an old man", "in an elderly way")),
-    "childlike": StyleWords(adjective="childlike", adverb="playfully", phrases=("like a child", "in a childlike way", "like a little kid")),
-    "angry": StyleWords(adjective="angry", adverb="angrily", phrases=("in an angry way", "like an angry person", "with anger")),
-    "strutting": StyleWords(adjective="strutting", adverb="confidently", phrases=("with a strut", "with a swagger", "in a strutting way")),
-    "sneaky": StyleWords(adjective="sneaky", adverb="sneakily", phrases=("in a sneaky way", "like a thief", "on tiptoe sneakily")),
+    "proud": StyleWords(
+        adjective="proud", adverb="proudly", phrases=("in a proud way", "with pride", "with the chest out")
+    ),
+    "depressed": StyleWords(
+        adjective="depressed",
+        adverb="sadly",
+        phrases=("in a depressed way", "like a sad person", "with the head hanging down"),
+    ),
+    "old": StyleWords(
+        adjective="old", adverb=None, phrases=("like an old person", "like an old man", "in an elderly way")
+    ),
+    "childlike": StyleWords(
+        adjective="childlike", adverb="playfully", phrases=("like a child", "in a childlike way", "like a little kid")
+    ),
+    "angry": StyleWords(
+        adjective="angry", adverb="angrily", phrases=("in an angry way", "like an angry person", "with anger")
+    ),
+    "strutting": StyleWords(
+        adjective="strutting", adverb="confidently", phrases=("with a strut", "with a swagger", "in a strutting way")
+    ),
+    "sneaky": StyleWords(
+        adjective="sneaky", adverb="sneakily", phrases=("in a sneaky way", "like a thief", "on tiptoe sneakily")
+    ),
 }

@@ -1,0 +1,189 @@
+"""``OnTheFlyMethod``: the method behind the workflow's contract (``augment.methods.base``).
+
+``train``: the base models (the T2M prior, the motion encoder); ``prepare``: pairs + fine-tuning -> artefact;
+``load``: artefact -> ``OnTheFlyModel``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, ClassVar
+
+from pydantic import BaseModel, ValidationError
+
+from motionaug.augment.corpus.clip import MotionClip
+from motionaug.augment.methods.base import (
+    ARTIFACT_WEIGHTS,
+    Progress,
+    StyleTransferMethod,
+    TrainingSpec,
+    TrainProgress,
+)
+from motionaug.augment.methods.common import (
+    configure_threads,
+    seeded_generator,
+    style_vocab,
+    tensor_bytes,
+    write_artifact,
+)
+from motionaug.augment.methods.onthefly.artifact import (
+    OnTheFlyArtifact,
+    base_fingerprint,
+    read_artifact,
+    rebuild_transfer_model,
+    weights_state,
+)
+from motionaug.augment.methods.onthefly.finetuning import ContentPool, FitResult, finetune, make_pool, resolve_tempo
+from motionaug.augment.methods.onthefly.model import OnTheFlyModel
+from motionaug.augment.methods.onthefly.pairs import make_pairs
+from motionaug.augment.methods.onthefly.params import METHOD_NAME, POOL_CLIPS, OnTheFlyParams, validate_params
+from motionaug.augment.training.base_models import BASE_JSON, BaseModels
+from motionaug.models.text_encoder import TextEncoder
+from motionaug.schemas.errors import MotionDataError, first_error
+from motionaug.schemas.styles import StyleSpec
+
+if TYPE_CHECKING:
+    from motionaug.augment.training.pretrain import PretrainConfig
+
+
+def pretrain_config(spec: TrainingSpec) -> PretrainConfig:
+    """The size's pre-training preset plus the run's overrides; a bad override is one line naming it."""
+    from motionaug.augment.training.pretrain import PretrainConfig
+
+    try:
+        return PretrainConfig.for_size(spec.size, seed=spec.seed, **spec.options)
+    except ValidationError as err:
+        field, message = first_error(err, "")
+        raise MotionDataError(f"config base_models.pretrain.{field}", message) from None
+
+
+class OnTheFlyMethod(StyleTransferMethod):
+    """``prepare``: pair generation + fine-tuning -> artefact; ``load``: artefact -> ``OnTheFlyModel``."""
+
+    name: ClassVar[str] = METHOD_NAME
+    Params: ClassVar[type[BaseModel]] = OnTheFlyParams
+    params: OnTheFlyParams
+    trains: ClassVar[bool] = True
+    content_pool: ClassVar[int] = POOL_CLIPS
+    smoke_params: ClassVar[dict[str, Any]] = {"max_steps": 2, "pair_steps": 10, "batch_size": 4}
+
+    def __init__(
+        self, params: OnTheFlyParams | dict[str, Any] | None = None, text_encoder: TextEncoder | None = None
+    ) -> None:
+        super().__init__(params)
+        self.text_encoder = text_encoder
+
+    @classmethod
+    def parse_params(cls, raw: Any) -> OnTheFlyParams:
+        """Pydantic's field checks, then the ranges across fields (``validate_params``)."""
+        return validate_params(super().parse_params(raw))  # type: ignore[arg-type]
+
+    # ---- once per run: the base models (the T2M prior, the motion encoder) --------------------------------
+
+    def check_training(self, spec: TrainingSpec) -> None:
+        pretrain_config(spec)
+
+    def is_trained(self, folder: Path) -> bool:
+        return (Path(folder) / BASE_JSON).is_file()
+
+    def train(self, corpus: Path, out: Path, spec: TrainingSpec, progress: TrainProgress | None = None) -> Path:
+        """Pre-train the base models on ``corpus`` into ``out`` (reused when ``out`` holds matching ones)."""
+        from motionaug.augment.training.pretrain import ensure_base_models
+
+        config = pretrain_config(spec)
+        return ensure_base_models(corpus, out, config.size, config.seed, progress, config)
+
+    # ---- once per style: pairs + fine-tuning -> artefact ---------------------------------------------------
+
+    def fit(
+        self,
+        style: StyleSpec,
+        examples: Sequence[MotionClip],
+        base: BaseModels,
+        corpus: Sequence[MotionClip],
+        seed: int | None = None,
+        progress: Progress | None = None,
+    ) -> tuple[OnTheFlyModel, FitResult, ContentPool, int]:
+        """Everything ``prepare`` does except writing: (loaded model, fit result, L_s pool, clips skipped)."""
+        if not examples:
+            raise MotionDataError(f"style {style.name!r}", "no example clips")
+        # a caller's seed (the workflow's per-style seed) wins over the params'
+        params = self.params if seed is None else self.params.model_copy(update={"seed": seed})
+        generator = seeded_generator(params.seed)
+        start = time.perf_counter()
+        vocab = style_vocab(style.words, style.name)
+        pairs = make_pairs(base, examples, params, generator, vocab)
+        tempo, fit_note = resolve_tempo(params, base, examples, corpus, vocab)
+        pool, skipped = make_pool(base, corpus, style, params, generator, tempo)  # also sets steps when lambda_s=0
+        prep_s = time.perf_counter() - start
+        fit = finetune(base, pairs, pool, params, progress)
+        fit.timings["pairs_and_pool_s"] = prep_s
+        fit.tempo_note = fit_note
+        return OnTheFlyModel(style, base, fit.model, params, tempo=tempo), fit, pool, skipped
+
+    def prepare(
+        self,
+        style: StyleSpec,
+        examples: Sequence[MotionClip],
+        trained: Path | None,
+        content: Sequence[MotionClip],
+        out: Path,
+        seed: int | None = None,
+        progress: Progress | None = None,
+    ) -> Path:
+        """Pairs + fine-tuning from the base models in ``trained``; ``content`` is the semantic loss's pool."""
+        if trained is None:
+            raise MotionDataError(f"{METHOD_NAME} prepare", "needs base models (the train step's folder)")
+        configure_threads()
+        base = BaseModels.load(trained, text_encoder=self.text_encoder)
+        model, fit, pool, skipped = self.fit(style, examples, base, content, seed, progress)
+        return self.save(Path(out), Path(trained), model, fit, pool, skipped)
+
+    def save(
+        self, out_dir: Path, base_dir: Path, model: OnTheFlyModel, fit: FitResult, pool: ContentPool, skipped: int
+    ) -> Path:
+        """Write ``weights.safetensors`` (adapters only for LoRA) and ``artifact.json`` (written last)."""
+        weights = weights_state(fit.model, model.params)
+        info = OnTheFlyArtifact(
+            style=model.spec,
+            params=model.params,
+            base_fingerprint=base_fingerprint(base_dir),
+            weights="lora" if model.params.lora_rank > 0 else "full",
+            weights_bytes=tensor_bytes(weights),
+            full_model_bytes=tensor_bytes(model.base.prior.state_dict()),
+            trainable_parameters=sum(t.numel() for t in weights.values()),
+            pool_clips=len(pool),
+            pool_skipped=skipped,
+            tempo=model.tempo,
+            tempo_note=fit.tempo_note,
+            loss_curve=fit.curve,
+            timings=fit.timings,
+        )
+        return write_artifact(out_dir, info, weights)
+
+    # ---- per worker: artefact -> loaded style ----------------------------------------------------------------
+
+    def load(self, artifact: Path, trained: Path | None, **options: Any) -> OnTheFlyModel:
+        """Options: ``merge`` (fold LoRA adapters into the weights; faster, not bit-identical), ``batch_size``,
+        ``bf16`` (override the artefact's autocast choice), ``text_encoder``."""
+        unknown = sorted(set(options) - {"merge", "batch_size", "bf16", "text_encoder"})
+        if unknown:
+            raise MotionDataError(f"{METHOD_NAME} load", f"unknown options {unknown}")
+        if trained is None:
+            raise MotionDataError(f"{METHOD_NAME} load", "needs base models (the train step's folder)")
+        artifact_dir, base_dir = Path(artifact), Path(trained)
+        configure_threads()
+        info = read_artifact(artifact_dir)
+        found = base_fingerprint(base_dir)
+        if found != info.base_fingerprint:
+            raise MotionDataError(
+                str(artifact_dir), f"tuned from base models {info.base_fingerprint}, {base_dir} is {found}"
+            )
+        base = BaseModels.load(base_dir, text_encoder=options.get("text_encoder", self.text_encoder))
+        model = rebuild_transfer_model(base, info, artifact_dir / ARTIFACT_WEIGHTS, bool(options.get("merge", False)))
+        params = (
+            info.params if "bf16" not in options else info.params.model_copy(update={"bf16": bool(options["bf16"])})
+        )
+        return OnTheFlyModel(info.style, base, model, params, options.get("batch_size"), tempo=info.tempo)

@@ -1,0 +1,142 @@
+"""The method's parameters: every knob, their range checks, and how many content clips ``prepare`` learns from."""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from motionaug.augment.diffusion.schedule import NUM_TRAIN_TIMESTEPS
+from motionaug.augment.motion.tempo import TEMPO_RANGE
+from motionaug.models.lora import DEFAULT_TARGETS as LORA_TARGETS
+from motionaug.schemas.errors import MotionDataError
+
+METHOD_NAME = "onthefly"
+
+POOL_CLIPS = 256
+"""Content clips the semantic loss draws from (paper sec. 3.4: "motions from the dataset"), chosen by the plan."""
+
+
+class OnTheFlyParams(BaseModel):
+    """Every knob of the method; ``extra="forbid"`` so a typo in a config is an error, not a default."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    version: int = 1
+    pair_noise_step: int = Field(950, description="G: training timestep the example is noised to for its neutral twin.")
+    pair_steps: int = Field(
+        100, description="DDPM steps of pair generation (respaced; 1000 = unspaced as the paper, ~10x slower on CPU)."
+    )
+    pair_guidance_scale: float | None = Field(2.5, description="Classifier-free guidance of the neutral twin.")
+    transfer_noise_step: int = Field(
+        300, description="K: training timestep content is noised to (fine-tune and transfer)."
+    )
+    ddim_steps: int = Field(20, description="S: DDIM steps of the whole process (K=300 of 1000 runs 6 of 20).")
+    transfer_guidance_scale: float | None = None
+    trajectory: Literal["horizontal", "root"] = Field(
+        "horizontal", description="Inpainted channels: root rotation + linear velocity, or also the root height."
+    )
+    inpaint_feet: bool = Field(
+        False, description="Also inpaint the foot-contact channels (pairs and transfer keep the gait's phase)."
+    )
+    lambda_rec: float = 1.0
+    lambda_s: float = 0.1
+    lr: float = 1e-4
+    grad_clip: float | None = 1.0
+    epochs: int = Field(1, description="Passes over the corpus pool of L_s (ignored when max_steps is set).")
+    max_steps: int | None = None
+    batch_size: int = 8
+    lora_rank: int = Field(
+        0,
+        description="0: full fine-tune; >0: LoRA adapters on lora_targets (they start at zero: give them a larger "
+        "lr and alpha, but not more passes, which memorise the example; configs/onthefly-lora-synthetic.yaml is the "
+        "recipe bench/RESULTS.md compares with full fine-tuning).",
+    )
+    lora_alpha: float | None = Field(None, description="LoRA scale numerator; defaults to the rank.")
+    lora_targets: tuple[str, ...] = Field(
+        LORA_TARGETS, description="Modules given adapters, by their last name components (models.lora)."
+    )
+    lora_biases: bool = Field(
+        False,
+        description="LoRA: also train the biases of the adapted layers and of the output layer (BitFit): "
+        "shifts a style holds over the whole clip cost low-rank deltas rank, a bias carries them.",
+    )
+    ema_decay: float | None = Field(
+        None, description="Keep an exponential moving average of the trained weights and ship it (None: the last step)."
+    )
+    caption_variants: int = 3
+    tempo: Literal["example", "content"] | float = Field(
+        "example",
+        description="Clock of the outputs: 'example' retimes content to the style's tempo measured from its "
+        "examples (augment.motion.tempo); 'content' keeps the content's clock (the paper); a number sets it "
+        "(below 1: slower).",
+    )
+    tempo_references: int = Field(
+        16,
+        description="Neutral corpus clips (captions nearest the examples' neutral descriptions) giving the neutral "
+        "cycle.",
+    )
+    neutralise_content: bool = Field(
+        True, description="Transfer: neutralise content clips whose captions name a style."
+    )
+    styled_corpus: Literal["skip", "neutralise"] = Field(
+        "skip",
+        description="L_s pool: drop corpus clips whose captions name a style, or neutralise them (slow: DDPM from G).",
+    )
+    min_frames: int = 20
+    bf16: bool | None = Field(None, description="bf16 autocast on CPU; None = where the CPU has bf16 units.")
+    seed: int = 0
+
+
+def _fail(field: str, reason: str) -> MotionDataError:
+    return MotionDataError(f"config method.params.{field}", f"{METHOD_NAME}: {reason}")
+
+
+def validate_params(params: OnTheFlyParams, num_timesteps: int = NUM_TRAIN_TIMESTEPS) -> OnTheFlyParams:
+    """Range checks across fields, each failing with the field's name (pydantic only checks types)."""
+    for name in ("pair_noise_step", "transfer_noise_step"):
+        value = getattr(params, name)
+        if not 0 < value <= num_timesteps:
+            raise _fail(name, f"{value} outside (0, {num_timesteps}]")
+    for name in ("pair_steps", "ddim_steps"):
+        value = getattr(params, name)
+        if not 1 <= value <= num_timesteps:
+            raise _fail(name, f"{value} outside [1, {num_timesteps}]")
+    positive = {
+        "lr": params.lr,
+        "epochs": params.epochs,
+        "batch_size": params.batch_size,
+        "caption_variants": params.caption_variants,
+    }
+    for name, value in positive.items():
+        if not value > 0:
+            raise _fail(name, f"must be > 0, got {value}")
+    for name in ("lambda_rec", "lambda_s"):
+        if not getattr(params, name) >= 0:
+            raise _fail(name, f"must be >= 0, got {getattr(params, name)}")
+    if params.lambda_rec == 0 and params.lambda_s == 0:
+        raise _fail("lambda_rec", "lambda_rec and lambda_s are both 0: nothing to learn")
+    if params.max_steps is not None and params.max_steps < 1:
+        raise _fail("max_steps", f"must be >= 1, got {params.max_steps}")
+    if params.lora_rank < 0:
+        raise _fail("lora_rank", f"must be >= 0, got {params.lora_rank}")
+    if params.ema_decay is not None and not 0.0 < params.ema_decay < 1.0:
+        raise _fail("ema_decay", f"{params.ema_decay} outside (0, 1)")
+    if params.lora_rank > 0 and not params.lora_targets:
+        raise _fail("lora_targets", "empty: LoRA needs at least one module to adapt")
+    if params.min_frames < 2:
+        raise _fail("min_frames", f"must be >= 2, got {params.min_frames}")
+    if params.grad_clip is not None and params.grad_clip <= 0:
+        raise _fail("grad_clip", f"must be > 0 or null, got {params.grad_clip}")
+    if isinstance(params.tempo, float) and not TEMPO_RANGE[0] <= params.tempo <= TEMPO_RANGE[1]:
+        raise _fail("tempo", f"{params.tempo} outside [{TEMPO_RANGE[0]}, {TEMPO_RANGE[1]}]")
+    if params.tempo_references < 1:
+        raise _fail("tempo_references", f"must be >= 1, got {params.tempo_references}")
+    return params
+
+
+def parse_params(data: dict[str, Any] | None = None, **overrides: Any) -> OnTheFlyParams:
+    """Params from a dict (a config file) plus overrides, validated; errors name the field."""
+    from motionaug.augment.methods.onthefly.method import OnTheFlyMethod  # the method imports these params
+
+    return OnTheFlyMethod.parse_params({**(data or {}), **overrides})

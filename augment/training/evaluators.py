@@ -1,0 +1,121 @@
+"""Training and inference helpers for the evaluation classifiers (content, style).
+
+Data is either one tuple of tensors ``(joints (N, T, J, 3), mask (N, T), labels (N,))``, shuffled into
+mini-batches here, or any iterable of such batches (e.g. a ``DataLoader``) re-iterated every epoch.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+
+import torch
+import torch.nn.functional as F
+
+from motionaug.augment.eval.metrics import recognition_accuracy
+from motionaug.models.evaluators import MotionClassifier
+from motionaug.schemas.errors import MotionDataError
+
+Batch = tuple[torch.Tensor, torch.Tensor, torch.Tensor]
+
+
+def _check_tensors(data: Batch) -> Batch:
+    joints, mask, labels = data
+    if not (joints.shape[0] == mask.shape[0] == labels.shape[0]):
+        raise MotionDataError(
+            "classifier data", f"joints/mask/labels sizes differ: {joints.shape[0]}, {mask.shape[0]}, {labels.shape[0]}"
+        )
+    if joints.shape[0] == 0:
+        raise MotionDataError("classifier data", "no samples")
+    return joints, mask.bool(), labels.long()
+
+
+def _batches(data: Batch | Iterable[Batch], batch_size: int, generator: torch.Generator) -> Iterator[Batch]:
+    if isinstance(data, tuple):
+        joints, mask, labels = _check_tensors(data)
+        order = torch.randperm(joints.shape[0], generator=generator)
+        for start in range(0, joints.shape[0], batch_size):
+            idx = order[start : start + batch_size]
+            yield joints[idx], mask[idx], labels[idx]
+    else:
+        for batch in data:
+            yield _check_tensors(tuple(batch))  # type: ignore[arg-type]
+
+
+def fit_classifier(
+    model: MotionClassifier,
+    data: Batch | Iterable[Batch],
+    epochs: int,
+    lr: float = 1e-3,
+    batch_size: int = 32,
+    weight_decay: float = 0.0,
+    seed: int = 0,
+    standardize: bool = True,
+) -> list[float]:
+    """Adam on cross-entropy; returns the mean training loss of each epoch. Leaves the model in eval mode.
+
+    ``standardize`` first sets the model's input statistics from the training data (one extra pass).
+    """
+    if epochs < 1:
+        raise MotionDataError("fit_classifier", f"epochs must be >= 1, got {epochs}")
+    if standardize:
+        _set_input_stats(model, data)
+    generator = torch.Generator().manual_seed(seed)
+    optimizer = torch.optim.Adam(model.parameters(), lr=lr, weight_decay=weight_decay)
+    history: list[float] = []
+    model.train()
+    for _ in range(epochs):
+        total, count = 0.0, 0
+        for joints, mask, labels in _batches(data, batch_size, generator):
+            loss = F.cross_entropy(model(joints, mask), labels)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            total += loss.item() * labels.shape[0]
+            count += labels.shape[0]
+        history.append(total / max(count, 1))
+    model.eval()
+    return history
+
+
+def _set_input_stats(model: MotionClassifier, data: Batch | Iterable[Batch]) -> None:
+    if isinstance(data, tuple):
+        joints, mask, _ = _check_tensors(data)
+    else:
+        batches = [_check_tensors(tuple(b)) for b in data]  # type: ignore[arg-type]
+        if not batches:
+            raise MotionDataError("classifier data", "no batches")
+        t_max = max(b[0].shape[1] for b in batches)
+        joints = torch.cat([F.pad(b[0], (0, 0, 0, 0, 0, t_max - b[0].shape[1])) for b in batches])
+        mask = torch.cat([F.pad(b[1], (0, t_max - b[1].shape[1])) for b in batches])
+    model.set_input_stats(joints, mask)
+
+
+@torch.no_grad()
+def _run(model: MotionClassifier, joints: torch.Tensor, mask: torch.Tensor, batch_size: int, what: str) -> torch.Tensor:
+    was_training = model.training
+    model.eval()
+    fn = model.features if what == "features" else model
+    outputs = [fn(joints[i : i + batch_size], mask[i : i + batch_size]) for i in range(0, joints.shape[0], batch_size)]
+    model.train(was_training)
+    return torch.cat(outputs)
+
+
+def classifier_logits(
+    model: MotionClassifier, joints: torch.Tensor, mask: torch.Tensor, batch_size: int = 64
+) -> torch.Tensor:
+    """Logits ``(N, C)`` in eval mode, batched."""
+    return _run(model, joints, mask.bool(), batch_size, "logits")
+
+
+def classifier_features(
+    model: MotionClassifier, joints: torch.Tensor, mask: torch.Tensor, batch_size: int = 64
+) -> torch.Tensor:
+    """Pooled penultimate features ``(N, F)`` in eval mode: the input of FMD."""
+    return _run(model, joints, mask.bool(), batch_size, "features")
+
+
+def classifier_accuracy(
+    model: MotionClassifier, joints: torch.Tensor, mask: torch.Tensor, labels: torch.Tensor
+) -> float:
+    """CRA or SRA of ``model`` on labelled joints."""
+    return recognition_accuracy(classifier_logits(model, joints, mask), labels)

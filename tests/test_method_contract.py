@@ -1,0 +1,92 @@
+"""Every registered method through the same motions: train -> prepare -> transfer, on a real local Ray.
+
+A method is tested the day it is registered: the test is parametrised over the registry, and each method
+declares its own seconds-long ``smoke_params``.
+"""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+from conftest import TWO_STYLES
+
+from motionaug.augment.corpus import Corpus
+from motionaug.augment.methods.base import ARTIFACT_JSON, StyleTransferMethod
+from motionaug.augment.methods.registry import known_methods, method_class
+from motionaug.augment.outputs.run_dir import RunDir
+from motionaug.augment.synth import generate_corpus
+from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.run_config import load_run_config
+from motionaug.workflows.pipeline import check_config
+
+N_CLIPS = 40
+
+
+@pytest.fixture(scope="module")
+def corpus(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("contract") / "corpus"
+    generate_corpus(root, N_CLIPS, seed=0)
+    return root
+
+
+def config_for(name: str, corpus: Path, out: Path, **method: object):
+    data = {
+        "corpus": {"path": str(corpus), "filters": {"source_styles": ["neutral"], "min_frames": 40}},
+        "styles": copy.deepcopy(TWO_STYLES),
+        "method": {"name": name, "params": {**method_class(name).smoke_params, **method}},
+        "base_models": {"size": "tiny"},
+        "compute": {"num_cpus": 2, "batch_size": 4, "unit_size": 4},
+        "output": str(out),
+        "seed": 0,
+    }
+    return load_run_config(None, data=data)
+
+
+def test_every_method_declares_the_contract() -> None:
+    for name in known_methods():
+        cls = method_class(name)
+        assert issubclass(cls, StyleTransferMethod) and cls.name == name
+        assert cls.Params.model_config.get("extra") == "forbid", f"{name}: a typo in a config must be an error"
+        cls.parse_params(cls.smoke_params)  # the smoke params are valid params
+        with pytest.raises(MotionDataError, match=r"config method\.params"):
+            cls.parse_params({"no_such_parameter": 1})
+
+
+@pytest.mark.parametrize("name", known_methods())
+def test_method_runs_train_prepare_transfer_on_ray(name: str, corpus: Path, tmp_path: Path) -> None:
+    import ray
+
+    from motionaug.workflows.ray_executor import execute_run
+
+    config = config_for(name, corpus, tmp_path / "run")
+    method = check_config(config)
+    try:
+        summary = execute_run(config)
+    finally:
+        if ray.is_initialized():
+            ray.shutdown()
+    run = RunDir(tmp_path / "run")
+    plan = run.read_plan()
+    assert plan is not None and plan.n_clips > 0
+    trained = Path(summary.manifest.base_models) if method.trains else None
+    assert (trained is not None and method.is_trained(trained)) == method.trains
+    for style in ("proud", "old"):
+        marker = run.artifact(style)
+        assert marker is not None and (run.root / marker.path / marker.entry / ARTIFACT_JSON).is_file()
+    table = pq.read_table(run.shards_dir)
+    planned = {(s, i) for u in plan.units for s, ids in u.styles.items() for i in ids}
+    written = set(zip(table.column("style").to_pylist(), table.column("source_id").to_pylist()))
+    assert written == planned and summary.manifest.rows == len(planned)  # every clip in every style, once
+    neutral = {c.id for c in Corpus(corpus) if c.style == "neutral" and c.n_frames >= 40}
+    assert {i for _, i in written} == neutral
+    assert all(captions for captions in table.column("captions").to_pylist())
+    assert set(table.column("method").to_pylist()) == {name}
+
+
+@pytest.mark.parametrize("name", known_methods())
+def test_an_unknown_parameter_is_one_config_line(name: str, corpus: Path, tmp_path: Path) -> None:
+    with pytest.raises(MotionDataError, match=rf"config method\.params\.colour: {name}"):
+        check_config(config_for(name, corpus, tmp_path / "run", colour=1))
