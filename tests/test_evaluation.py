@@ -192,3 +192,16 @@ def test_loss_curves_accept_numbers_or_records_and_skip_styles_without(tmp_path:
     (tmp_path / "styles" / "b" / "artifact.json").write_text('{"method": "stats"}')
     curves = loss_curves(tmp_path, ["a", "b", "missing"])
     assert curves == {"a": [{"step": 0.0, "total": 3.0}, {"step": 1.0, "total": 2.0}, {"step": 2.0, "total": 1.5}]}
+
+
+def test_clips_the_evaluators_trained_on_are_counted_and_held_out_figures_kept_apart(tiny) -> None:
+    evaluation = evaluate_run(tiny["run"], base_models=tiny["base"])
+    train_rows = [r for r in evaluation.scores if r["split"] == "train"]
+    assert 0 < len(train_rows) < len(evaluation.scores)  # the fixture corpus has train and held-out clips
+    assert evaluation.overall.trained_on == len(train_rows)
+    assert evaluation.overall.held_out == len(evaluation.scores) - len(train_rows)
+    held = [r for r in evaluation.scores if r["split"] != "train"]
+    assert evaluation.overall.sra_held_out == pytest.approx(np.mean([r["style_correct"] for r in held]))
+    assert any("optimistic" in note for note in evaluation.notes)
+    table = summary_table((tiny["run"] / "report.md").read_text())
+    assert table["all"]["clips the evaluators trained on"] == str(len(train_rows))

@@ -79,6 +79,7 @@ SCORES_SCHEMA = pa.schema(
         pa.field("style", pa.string(), nullable=False),
         pa.field("content", pa.string()),
         pa.field("split", pa.string()),
+        pa.field("evaluators_trained_on", pa.bool_()),
         pa.field("n_frames", pa.int32()),
         pa.field("fps", pa.float32()),
         pa.field("method_style_score", pa.float64()),
@@ -130,6 +131,10 @@ class StyleSummary:
     clips: int
     sra: float | None = None
     cra: float | None = None
+    trained_on: int = 0  # scored clips whose source the evaluators were trained on (the base corpus's train split)
+    held_out: int = 0
+    sra_held_out: float | None = None
+    cra_held_out: float | None = None
     fmd: float | None = None
     diversity: float | None = None
     diversity_real: float | None = None
@@ -310,7 +315,7 @@ def _method_scores(scores: Sequence[tuple[str, float]] | None) -> dict[str, floa
 
 
 @torch.no_grad()
-def _classify(model: MotionClassifier, joints: Sequence[np.ndarray], batch: int = 32) -> tuple[np.ndarray, np.ndarray]:
+def classify(model: MotionClassifier, joints: Sequence[np.ndarray], batch: int = 32) -> tuple[np.ndarray, np.ndarray]:
     """(probabilities (N, C), pooled features (N, F)) of joint clips, batched with a frame mask."""
     probs, feats = [], []
     for start in range(0, len(joints), batch):
@@ -356,6 +361,7 @@ def evaluate_run(
     corpus = Path(config["corpus"]["path"])
     reference = Path(reference) if reference is not None else corpus
     classifiers = _classifiers(run_dir, manifest, config, Path(base_models) if base_models else None, notes)
+    evaluators_saw_train = classifiers is not None and _evaluators_trained_on(classifiers.source, corpus)
     source_ids = {r["source_id"] for r in iter_shard_rows(run_dir, columns=["source_id"])}
     if not source_ids:
         raise MotionDataError(str(run_dir), "run has no stylized clips to evaluate")
@@ -364,11 +370,18 @@ def evaluate_run(
     styles = [s["name"] for s in config.get("styles", [])] or sorted({r["style"] for r in records})
     real_feats = _real_features(reference, styles, classifiers, notes)
     style_of = np.array([r["style"] for r in records])
+    for record in records:
+        record["evaluators_trained_on"] = evaluators_saw_train and record["split"] == "train"
     summaries = [
         _summarise([r for r in records if r["style"] == s], out_feats[style_of == s], real_feats.get(s), s, seed, notes)
         for s in styles
     ]
     overall = _summarise(records, out_feats, None, "all", seed, notes)
+    if evaluators_saw_train and overall.trained_on:
+        notes.append(
+            f"{overall.trained_on} of {overall.clips} scored clips come from the train split the evaluators were "
+            "trained on: SRA and CRA over every clip are optimistic; the held-out columns score val/test clips only"
+        )
     fmds = [s.fmd for s in summaries if s.fmd is not None]
     overall.fmd = float(np.mean(fmds)) if fmds else None
     _explain_gaps(records, summaries, classifiers, notes)
@@ -405,6 +418,17 @@ def _throughput(manifest: Manifest) -> float | None:
     """Stylized clips per second of the transfer stage (its clock starts with the fine-tunes it waits for)."""
     transfer = manifest.stages.get("transfer")
     return manifest.rows / transfer.seconds if transfer is not None and transfer.seconds > 0 else None
+
+
+def _evaluators_trained_on(base_dir: str, corpus: Path) -> bool:
+    """Whether the evaluators were fit on this corpus (their train split), from the corpus fingerprint."""
+    from motionaug.augment.training.pretrain import corpus_fingerprint
+
+    recorded = read_base_info(Path(base_dir)).corpus_fingerprint
+    try:
+        return bool(recorded) and Path(corpus).is_dir() and corpus_fingerprint(corpus) == recorded
+    except MotionDataError:
+        return False
 
 
 def _classifiers(
@@ -458,7 +482,7 @@ def _score_batch(
         if model is None:
             columns.update({f"{prefix}_{k}": [None] * len(rows) for k in ("pred", "prob", "correct")})
             continue
-        probs, f = _classify(model, joints)
+        probs, f = classify(model, joints)
         labels = classifiers.content_labels if prefix == "content" else classifiers.style_labels
         targets = [r["content"] if prefix == "content" else str(r["style"]) for r in rows]
         columns.update(_predictions(probs, labels, targets, prefix))
@@ -506,11 +530,11 @@ def _real_features(
         if clip.style in wanted:
             joints[clip.style].append(features_to_joints(clip.motion, T2M, f"clip {clip.id}"))
             if len(joints[clip.style]) == 64:  # features only are kept, never a whole corpus of joints
-                feats[clip.style].append(_classify(classifiers.style, joints[clip.style])[1])
+                feats[clip.style].append(classify(classifiers.style, joints[clip.style])[1])
                 joints[clip.style] = []
     for style, rest in joints.items():
         if rest:
-            feats[style].append(_classify(classifiers.style, rest)[1])
+            feats[style].append(classify(classifiers.style, rest)[1])
     if not any(feats.values()):
         notes.append(f"reference corpus {reference} has no clips labelled with the run's styles: no FMD")
     return {s: np.concatenate(f) for s, f in feats.items() if f}
@@ -533,6 +557,10 @@ def _summarise(
     summary = StyleSummary(style=name, clips=len(records))
     summary.sra = _mean(records, "style_correct")
     summary.cra = _mean(records, "content_correct")
+    held = [r for r in records if not r["evaluators_trained_on"]]
+    summary.trained_on, summary.held_out = len(records) - len(held), len(held)
+    summary.sra_held_out = _mean(held, "style_correct")
+    summary.cra_held_out = _mean(held, "content_correct")
     for name_ in (
         "foot_skating",
         "foot_skating_source",
