@@ -296,8 +296,6 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--threads", type=int, default=int(os.environ.get("MOTIONAUG_TORCH_THREADS", "2")))
     parser.add_argument("--random-base", action="store_true")
     parser.add_argument("--base-dir", type=Path, default=None, help="use this base-models folder as it is")
-    parser.add_argument("--prior-time-s", type=float, default=1200.0, help="pretraining cap for the prior (0: none)")
-    parser.add_argument("--encoder-time-s", type=float, default=300.0, help="pretraining cap for the motion encoder")
     parser.add_argument("--pretrain-batch", type=int, default=16, help="pretraining batch size (small preset: 64)")
     parser.add_argument("--pretrain-only", action="store_true", help="build the base models and stop")
     parser.add_argument("--quick", action="store_true", help="tiny sizes, few clips: a smoke run")
@@ -319,7 +317,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         overrides = {"pair_steps": 20, "max_steps": 2, "batch_size": 4, **overrides}
     args.work.mkdir(parents=True, exist_ok=True)
     corpus_dir, corpus = load_corpus(args.work, args.n_clips, args.seed)
-    caps = {"prior_time_s": args.prior_time_s, "encoder_time_s": args.encoder_time_s, "batch_size": args.pretrain_batch}
+    caps = {"batch_size": args.pretrain_batch}
     if args.base_dir is not None:
         base_dir, pretrained = args.base_dir, BaseModels.load(args.base_dir).style_classifier is not None
     else:

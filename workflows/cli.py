@@ -182,11 +182,17 @@ def pretrain(
     out: Annotated[Path, typer.Option(help="Base-models folder to write (resumes from its checkpoints).")],
     size: Annotated[str, typer.Option(help="Model size: tiny, small or paper.")] = "small",
     seed: Annotated[int, typer.Option(help="Training seed.")] = 0,
+    overrides: Annotated[
+        list[str] | None, typer.Option("--set", help="Preset override key=value, e.g. prior_steps=2000 (repeatable).")
+    ] = None,
 ) -> None:
     """Train the base models: the T2M diffusion prior, the motion encoder and the evaluators."""
     from motionaug.augment.training.pretrain import PretrainConfig, ensure_base_models
+    from motionaug.schemas.run_config import apply_overrides
 
-    config = run_safely(lambda: PretrainConfig.for_size(size, seed=seed))
+    with usage_errors():
+        options = apply_overrides({}, overrides or [])
+    config = run_safely(lambda: PretrainConfig.for_size(size, seed=seed, **options))
     columns = (
         TextColumn("{task.description:>15}"),
         BarColumn(),

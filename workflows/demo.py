@@ -33,7 +33,7 @@ DEMO_METHODS = ("onthefly", "stats")
 # `motionaug pretrain` would, and each style's fine-tune has a step budget (bench/RESULTS.md has the
 # figures). `tiny` is a smoke run of the same path (seconds of training, untrained-looking output).
 DEMO_PROFILES: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
-    "small": ({"prior_steps": 1400, "prior_time_s": 300.0, "encoder_time_s": 45.0}, {"max_steps": 40}),
+    "small": ({"prior_steps": 1400, "encoder_steps": 400}, {"max_steps": 40}),
     "tiny": ({}, {"max_steps": 2, "pair_steps": 10, "batch_size": 4}),
 }
 

@@ -81,9 +81,7 @@ class PretrainConfig(BaseModel):
     size: Literal["tiny", "small", "paper"] = "small"
     seed: int = 0
     prior_steps: int = Field(4000, ge=1)
-    prior_time_s: float | None = Field(None, gt=0, description="Stop the prior early after this many seconds.")
     encoder_steps: int = Field(1500, ge=1)
-    encoder_time_s: float | None = Field(None, gt=0)
     classifier_epochs: int = Field(40, ge=1)
     classifier_size: Literal["tiny", "default"] = "default"
     batch_size: int = Field(64, ge=1)
@@ -135,12 +133,10 @@ class PretrainConfig(BaseModel):
             # small: a narrow prior (d=128) learns the synthetic corpus faster per CPU second than d=256; input
             # perturbation (DDPM-IP) helps text-to-motion style recognition (bench/RESULTS.md has both figures)
             "small": {
-                "prior_steps": 4000,
-                "prior_time_s": 600.0,
+                "prior_steps": 3600,
                 "prior_latent_dim": 128,
                 "prior_ff_size": 256,
-                "encoder_steps": 100_000,
-                "encoder_time_s": 120.0,
+                "encoder_steps": 1500,
                 "classifier_epochs": 10,
                 "batch_size": 32,
                 "lr": 2e-3,
@@ -302,34 +298,29 @@ def _checkpoint(
     save_checkpoint(run.checkpoints, record, modules, state)
 
 
-def _expected_steps(loop: LoopState, total: int, time_cap: float | None) -> int:
-    """Steps the stage will run: ``total``, or fewer as extrapolated from the pace so far under a time cap."""
-    if time_cap is None or loop.elapsed <= 0:
-        return total
-    return max(loop.step, min(total, round(loop.step * time_cap / loop.elapsed)))
-
-
 def _train_loop(
     run: Run,
     stage: str,
     modules: dict[str, nn.Module],
     optimizer: torch.optim.Optimizer,
     loss_fn: Callable[[Batch, torch.Generator], tuple[Tensor, dict[str, float]]],
-    settings: tuple[int, float | None, float],
+    settings: tuple[int, float],
     finish: Callable[[], dict[str, float]],
 ) -> None:
-    """Run ``loss_fn`` steps with checkpoints until ``total`` steps or the time cap; resumes where it stopped."""
-    total, time_cap, base_lr = settings
+    """Run ``loss_fn`` for ``total`` steps with checkpoints; resumes where it stopped.
+
+    The length is a step count, never a time: the same config and seed give the same weights on a busy machine.
+    """
+    total, base_lr = settings
     loop = LoopState(generator=torch.Generator().manual_seed(run.config.seed * 1000 + STAGES.index(stage) + 1))
     if _resume(run, stage, modules, optimizer, loop):
         return
     params = [p for group in optimizer.param_groups for p in group["params"]]
     for module in modules.values():
         module.train()
-    while loop.step < total and (time_cap is None or loop.elapsed < time_cap):
+    while loop.step < total:
         started, cpu_started = time.perf_counter(), time.process_time()
-        progress = max(loop.step / total, loop.elapsed / time_cap if time_cap else 0.0)
-        lr = lr_at(run.config, base_lr, progress, loop.step)
+        lr = lr_at(run.config, base_lr, loop.step / total, loop.step)
         for group in optimizer.param_groups:
             group["lr"] = lr
         batch = sample_batch(run.train, run.config.batch_size, run.config.max_frames, loop.generator, run.config.bucket)
@@ -346,7 +337,7 @@ def _train_loop(
             run.log(stage, loop.step, {**values, "elapsed_s": loop.elapsed, "cpu_s": loop.cpu})
         if loop.step % run.config.checkpoint_every == 0:
             _checkpoint(run, stage, total, False, modules, _rng_state(loop, optimizer), loop)
-        run.report(stage, loop.step, _expected_steps(loop, total, time_cap), values)
+        run.report(stage, loop.step, total, values)
     for module in modules.values():
         module.eval()
     final = finish()
@@ -426,7 +417,7 @@ def train_prior(run: Run) -> MDM:
         {"prior": prior},
         optimizer,
         lambda batch, gen: prior_loss(prior, schedule, batch, run, gen),
-        (cfg.prior_steps, cfg.prior_time_s, cfg.lr),
+        (cfg.prior_steps, cfg.lr),
         lambda: {"prior_test_mse": held_out_prior_mse(prior, schedule, run)},
     )
     return prior.eval()
@@ -485,7 +476,7 @@ def train_motion_encoder(run: Run, prior: MDM) -> MotionEncoder:
         {"motion_encoder": encoder},
         optimizer,
         loss_fn,
-        (cfg.encoder_steps, cfg.encoder_time_s, cfg.encoder_lr),
+        (cfg.encoder_steps, cfg.encoder_lr),
         lambda: encoder_metrics(encoder, run),
     )
     prior.input_process.requires_grad_(True)
