@@ -201,9 +201,13 @@ class PlanStage(Stage):
         return self._units(sorted(chosen), len(corpus.rejects))
 
     def _check_example_ids(self, all_ids: set[str]) -> None:
+        """Example ids must name corpus clips; outside the run's split (an example from train) they are looked up."""
+        whole = Corpus(self.config.corpus.path)
         for i, style in enumerate(self.config.styles):
             for j, example in enumerate(style.examples):
-                if Path(example.source).suffix.lower() not in (".npy", ".bvh") and example.source not in all_ids:
+                if Path(example.source).suffix.lower() in (".npy", ".bvh") or example.source in all_ids:
+                    continue
+                if whole.get(example.source) is None:
                     where = f"config styles[{i}].examples[{j}].source"
                     reason = f"clip id {example.source!r} is not in the corpus (nor a .npy/.bvh file)"
                     raise MotionDataError(where, reason)

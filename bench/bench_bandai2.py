@@ -1,0 +1,225 @@
+"""The on-the-fly paper's Bandai-2 protocol (sec. 4.2, Table 2) on held-out takes, scored per style.
+
+Usage: python bench/bench_bandai2.py --corpus BANDAI2 --base BASE --work WORK [--split test|val]
+       [--method onthefly|stats] [--params JSON] [--examples 1] [--set key=value ...]
+
+``BANDAI2``: ``motionaug corpus import-bvh ../shared/data/bandai/dataset-2 --out BANDAI2 --max-frames 196 --mean-std``;
+``BASE``: ``motionaug pretrain --corpus BANDAI2 --out BASE`` (prior, encoder and evaluators fit on the train split).
+
+Runs ``configs/bandai2-<method>.yaml`` through ``motionaug run`` (every ``normal`` clip of ``--split`` into each of the
+7 styles, each learnt from ``--examples`` train takes of ``walk``), then scores every output with the base models'
+evaluators, which never saw a ``--split`` take:
+- CRA / SRA: the content / style classifier's top-1 on the output against the source's content / the target style,
+  each with a Wilson 95% interval;
+- FMD: Frechet distance of content-classifier features (the paper's definition) between the outputs of a style and
+  the real ``--split`` takes of that style (every content), both drawn to the same count; beside it the same
+  distance between real ``--split`` and real train takes of the style at that count (the floor a transfer can reach);
+- foot skating of the outputs against the real ``--split`` takes of the style;
+- prepare (fine-tune) seconds per style, from the run's artefact markers.
+The mean is over the 6 styles other than ``normal``. Prints a Markdown table and writes ``WORK/<method>-<split>.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from motionaug.augment.corpus import Corpus
+from motionaug.augment.eval.evaluation import classify, load_classifiers
+from motionaug.augment.eval.inputs import features_to_joints
+from motionaug.augment.eval.metrics import foot_skating_ratio, frechet_distance
+from motionaug.augment.outputs.run_dir import RunDir
+from motionaug.augment.outputs.shards import iter_shard_rows, row_motion
+from motionaug.schemas.run_config import load_run_config
+from motionaug.schemas.skeleton import T2M
+
+REPO = Path(__file__).resolve().parents[1]
+NEUTRAL = "normal"
+
+
+def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """95% Wilson score interval of a proportion (stays inside [0, 1] at 0% and 100%)."""
+    if n == 0:
+        return (math.nan, math.nan)
+    p = successes / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def joints_of(motion: np.ndarray) -> np.ndarray:
+    return features_to_joints(motion, T2M).numpy()
+
+
+def skating(joints: list[np.ndarray]) -> float:
+    return float(np.mean([foot_skating_ratio(j, T2M, 20.0) for j in joints if len(j) >= 2]))
+
+
+def matched_fmd(a: np.ndarray, b: np.ndarray, seed: int) -> tuple[float, int]:
+    """FMD with both sets drawn to the smaller count (FMD is biased by the sample count)."""
+    n = min(len(a), len(b))
+    rng = np.random.default_rng(seed)
+    a = a[rng.choice(len(a), n, replace=False)]
+    b = b[rng.choice(len(b), n, replace=False)]
+    return frechet_distance(a, b), n
+
+
+def real_takes(corpus: Path, split: str) -> dict[str, list[Any]]:
+    """Clips of ``split`` by style."""
+    out: dict[str, list[Any]] = defaultdict(list)
+    for clip in Corpus(corpus, split=split):
+        out[clip.style].append(clip)
+    return out
+
+
+def run_protocol(args: argparse.Namespace) -> Path:
+    """``motionaug run`` on the shipped config, with this bench's corpus, base models, split and output."""
+    from motionaug.workflows.ray_executor import execute_run
+
+    out = args.work / f"{args.method}-{args.split}"
+    overrides = [
+        f"corpus.path={args.corpus}",
+        f"corpus.split={args.split}",
+        f"output={out}",
+        *args.set,
+    ]
+    if args.method != "stats":
+        overrides.append(f"base_models.path={args.base}")
+    config = load_run_config(REPO / "configs" / f"bandai2-{args.method}.yaml", overrides)
+    if args.params:
+        params = {**config.method.params, **json.loads(args.params)}
+        config = config.model_copy(update={"method": config.method.model_copy(update={"params": params})})
+    if args.examples > 1:
+        styles = []
+        for style in config.styles:
+            first = style.examples[0]
+            extra = [
+                first.model_copy(update={"source": first.source.replace("_001", f"_{i:03d}")})
+                for i in range(2, args.examples + 1)
+            ]
+            styles.append(style.model_copy(update={"examples": [first, *extra]}))
+        config = config.model_copy(update={"styles": styles})
+    execute_run(config)
+    return out
+
+
+def score(run_dir: Path, args: argparse.Namespace) -> dict[str, Any]:
+    torch.set_num_threads(args.threads)
+    judges = load_classifiers(args.base)
+    held_out = real_takes(args.corpus, args.split)
+    train = real_takes(args.corpus, "train")
+    sources = {c.id: c for c in held_out[NEUTRAL]}
+    by_style: dict[str, list[tuple[str, np.ndarray]]] = defaultdict(list)
+    for row in iter_shard_rows(run_dir, columns=["source_id", "style", "motion", "n_frames", "n_feats"]):
+        by_style[row["style"]].append((row["source_id"], joints_of(row_motion(row))))
+    run = RunDir(run_dir)
+    manifest = run.manifest()
+    rows: dict[str, dict[str, Any]] = {}
+    for style in sorted(by_style):
+        outputs = by_style[style]
+        joints = [j for _, j in outputs]
+        content_probs, content_feats = classify(judges.content, joints)
+        style_probs, _ = classify(judges.style, joints)
+        contents = [sources[s].content for s, _ in outputs]
+        cra_hits = int(sum(judges.content_labels[int(i)] == c for i, c in zip(content_probs.argmax(1), contents)))
+        sra_hits = int(sum(judges.style_labels[int(i)] == style for i in style_probs.argmax(1)))
+        real = [joints_of(c.motion) for c in held_out[style]]
+        real_feats = classify(judges.content, real)[1]
+        train_feats = classify(judges.content, [joints_of(c.motion) for c in train[style]])[1]
+        fmd, n_fmd = matched_fmd(content_feats, real_feats, args.seed)
+        floor, _ = matched_fmd(train_feats, real_feats, args.seed)
+        marker = manifest.artifacts.get(style)
+        rows[style] = {
+            "clips": len(outputs),
+            "cra": cra_hits / len(outputs),
+            "cra_95": wilson(cra_hits, len(outputs)),
+            "sra": sra_hits / len(outputs),
+            "sra_95": wilson(sra_hits, len(outputs)),
+            "predicted_styles": dict(
+                sorted(
+                    {
+                        lab: int(n)
+                        for lab, n in zip(
+                            judges.style_labels, np.bincount(style_probs.argmax(1), minlength=len(judges.style_labels))
+                        )
+                        if n
+                    }.items()
+                )
+            ),
+            "fmd": fmd,
+            "fmd_real_train_vs_held_out": floor,
+            "fmd_samples": n_fmd,
+            "foot_skating": skating(joints),
+            "foot_skating_real": skating(real),
+            "prepare_s": marker.seconds if marker else None,
+        }
+    stylized = [r for s, r in rows.items() if s != NEUTRAL]
+    mean = {k: float(np.mean([r[k] for r in stylized])) for k in ("cra", "sra", "fmd", "foot_skating", "prepare_s")}
+    mean["sra_min"] = float(min(r["sra"] for r in stylized))
+    return {
+        "split": args.split,
+        "method": args.method,
+        "run": str(run_dir),
+        "examples_per_style": args.examples,
+        "styles": rows,
+        "mean_over_6": mean,
+        "transfer_s": manifest.stages["transfer"].seconds,
+        "evaluators": str(args.base),
+    }
+
+
+def table(result: dict[str, Any]) -> str:
+    lines = [
+        f"{result['method']} on Bandai-2 {result['split']} takes ({result['examples_per_style']} example(s) per style)",
+        "",
+        "| style | clips | CRA (95% CI) | SRA (95% CI) | FMD (real floor, n) | foot skating (real) | prepare s |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for style, r in result["styles"].items():
+        lines.append(
+            f"| {style} | {r['clips']} | {r['cra']:.1%} ({r['cra_95'][0]:.0%}-{r['cra_95'][1]:.0%}) "
+            f"| {r['sra']:.1%} ({r['sra_95'][0]:.0%}-{r['sra_95'][1]:.0%}) "
+            f"| {r['fmd']:.2f} ({r['fmd_real_train_vs_held_out']:.2f}, {r['fmd_samples']}) "
+            f"| {r['foot_skating']:.3f} ({r['foot_skating_real']:.3f}) | {r['prepare_s'] or 0:.1f} |"
+        )
+    m = result["mean_over_6"]
+    lines.append(
+        f"| mean of 6 | | {m['cra']:.1%} | {m['sra']:.1%} (min {m['sra_min']:.1%}) | {m['fmd']:.2f} "
+        f"| {m['foot_skating']:.3f} | {m['prepare_s']:.1f} |"
+    )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--corpus", type=Path, required=True)
+    parser.add_argument("--base", type=Path, required=True, help="base models: the evaluators (and the prior)")
+    parser.add_argument("--work", type=Path, required=True)
+    parser.add_argument("--split", choices=("val", "test"), default="test")
+    parser.add_argument("--method", default="onthefly")
+    parser.add_argument("--params", default="", help="JSON merged into the config's method params")
+    parser.add_argument("--examples", type=int, default=1, help="example takes per style (001, 002, ...)")
+    parser.add_argument("--set", action="append", default=[], help="run-config override key=value")
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--score-only", action="store_true", help="score the existing run folder")
+    args = parser.parse_args(argv)
+    args.corpus, args.base, args.work = args.corpus.resolve(), args.base.resolve(), args.work.resolve()
+    args.work.mkdir(parents=True, exist_ok=True)
+    run_dir = args.work / f"{args.method}-{args.split}" if args.score_only else run_protocol(args)
+    result = score(run_dir, args)
+    (args.work / f"{args.method}-{args.split}.json").write_text(json.dumps(result, indent=1) + "\n")
+    print(table(result))
+    return result
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
