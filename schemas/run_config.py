@@ -87,6 +87,9 @@ class BaseModelsConfig(_Strict):
     MDM checkpoint); otherwise they are pre-trained there, and reused on later runs while corpus and config match."""
 
     path: Path | None = Field(default=None, description="Pre-trained base models; None: <run>/base_models.")
+    corpus: Path | None = Field(
+        default=None, description="Labelled corpus the method trains on (its train split); None: the run's corpus."
+    )
     pretrain_if_missing: bool = True
     size: Literal["tiny", "small", "paper"] = "small"
     pretrain: dict[str, Any] = Field(
@@ -194,7 +197,9 @@ def resolve_paths(config: RunConfig, base: Path) -> RunConfig:
         update={
             "corpus": config.corpus.model_copy(update={"path": absolute(config.corpus.path)}),
             "output": absolute(config.output),
-            "base_models": config.base_models.model_copy(update={"path": absolute(config.base_models.path)}),
+            "base_models": config.base_models.model_copy(
+                update={"path": absolute(config.base_models.path), "corpus": absolute(config.base_models.corpus)}
+            ),
             "styles": styles,
         }
     )

@@ -60,6 +60,11 @@ def training_spec(config: RunConfig) -> TrainingSpec:
     return TrainingSpec(size=config.base_models.size, options=dict(config.base_models.pretrain), seed=config.seed)
 
 
+def training_corpus(config: RunConfig) -> Path:
+    """The labelled corpus the method trains on: ``base_models.corpus``, else the run's corpus."""
+    return config.base_models.corpus or config.corpus.path
+
+
 def trained_dir(config: RunConfig) -> Path:
     """Where the method's once-per-run models are: ``base_models.path``, else ``<run>/base_models``."""
     return config.base_models.path or (config.output / "base_models")
@@ -88,7 +93,7 @@ def check_config(config: RunConfig) -> StyleTransferMethod:
         method.check_training(training_spec(config))
         trained = trained_dir(config) if method.is_trained(trained_dir(config)) else None
     for style in config.styles:
-        method.check_style(style, trained)
+        method.check_style(style, trained, training_corpus(config))
     return method
 
 
@@ -269,7 +274,7 @@ class TrainStage(Stage):
                 raise MotionDataError("config base_models.path", reason)
             return str(self.target)
         spec = training_spec(self.config)
-        return str(self.method.train(self.config.corpus.path, self.target, spec, progress=TrainLog()))
+        return str(self.method.train(training_corpus(self.config), self.target, spec, progress=TrainLog()))
 
 
 class TrainLog:

@@ -116,8 +116,9 @@ class StyleTransferMethod(ABC):
 
     # ---- once per style -------------------------------------------------------------------------------
 
-    def check_style(self, style: StyleSpec, trained: Path | None) -> None:
-        """Config-time check of one style; ``trained`` is the trained folder when it exists already."""
+    def check_style(self, style: StyleSpec, trained: Path | None, corpus: Path | None = None) -> None:
+        """Config-time check of one style; ``trained``: the trained folder when it exists already; ``corpus``: the
+        labelled corpus ``train`` learns from."""
 
     def prepare(
         self,

@@ -19,7 +19,10 @@ Method-agnostic helpers, each working in the normalised feature space of the bas
 from __future__ import annotations
 
 import hashlib
+import json
 import os
+import shutil
+import uuid
 import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -302,3 +305,71 @@ def output_motion(base: BaseModels, out: Tensor, reference: np.ndarray, channels
     motion = base.normalizer.denormalize(out.numpy()).astype(np.float32)
     motion[:, channels] = reference[:, channels]
     return motion
+
+
+# ---- networks trained once on a labelled style corpus (Style-ERD, UMSD) ---------------------------------------
+
+TRAINED_JSON = "trained.json"
+
+
+def labelled_training_clips(corpus: Path, neutral_style: str, neutral: str = "neutral") -> list[MotionClip]:
+    """The labelled corpus's train split (all of it without split files), its neutral style named ``neutral``."""
+    from motionaug.augment.corpus import Corpus
+
+    reader = Corpus(corpus, split="train") if (Path(corpus) / "train.txt").is_file() else Corpus(corpus)
+    clips = list(reader)
+    for clip in clips:
+        if clip.style == neutral_style:
+            clip.style = neutral
+    return clips
+
+
+def training_record(corpus: Path, config: BaseModel, neutral_style: str) -> dict[str, Any]:
+    """What a trained folder was made from: it is reused only while all of it is the same."""
+    from motionaug.augment.training.pretrain import corpus_fingerprint
+
+    return {
+        "corpus_fingerprint": corpus_fingerprint(corpus),
+        "train": config.model_dump(mode="json"),
+        "neutral_style": neutral_style,
+    }
+
+
+def trained_with(folder: Path, record: dict[str, Any]) -> bool:
+    marker = Path(folder) / TRAINED_JSON
+    try:
+        return json.loads(marker.read_text(encoding="utf-8")) == record
+    except (OSError, ValueError):
+        return False
+
+
+def mark_trained(folder: Path, record: dict[str, Any]) -> None:
+    """Written last: its presence marks a complete trained folder."""
+    atomic_write_text(Path(folder) / TRAINED_JSON, json.dumps(record, indent=1, sort_keys=True) + "\n")
+
+
+def write_model_folder(out: Path, tensors: dict[str, dict[str, Tensor]], texts: dict[str, str]) -> Path:
+    """Safetensors files and text files written into a temporary sibling, renamed into place when complete.
+
+    An older folder at ``out`` is replaced only then, so a crash leaves either the old model or the new one.
+    """
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.tmp")
+    tmp.mkdir()
+    try:
+        for name, state in tensors.items():
+            save_file({k: v.contiguous() for k, v in state.items()}, str(tmp / name))
+        for name, text in texts.items():
+            (tmp / name).write_text(text, encoding="utf-8")
+        old = None
+        if out.exists():
+            old = out.with_name(f".{out.name}.{uuid.uuid4().hex[:12]}.old")
+            os.replace(out, old)
+        os.replace(tmp, out)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    return out

@@ -16,6 +16,8 @@ METHODS = MappingProxyType(
     {
         "stats": "motionaug.augment.methods.stats_baseline:StatsBaselineMethod",
         "onthefly": "motionaug.augment.methods.onthefly:OnTheFlyMethod",
+        "erd": "motionaug.augment.methods.erd.method:ErdMethod",
+        "umsd": "motionaug.augment.methods.umsd.method:UmsdMethod",
     }
 )
 

@@ -1,0 +1,153 @@
+"""Style-ERD behind the method contract: trained once per run on a labelled style corpus, no per-style learning.
+
+``train`` fits the network on the train split of the labelled corpus (all of it without split files) and is
+reused while the corpus and the training config match; ``check_style`` refuses, before Ray starts, a style the
+network has not learnt; ``prepare`` records the style; ``load`` + ``transfer`` stylize whole clips offline with
+the recurrent layers run over each sequence at once (``motionaug stream`` runs the same network frame by frame).
+Content clips are taken as what their labels say: the style label as the source style (none: neutral, supp.
+C.4) and the content label for the neutral branch's initial state (none: the learned unknown-content state).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, ClassVar
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from motionaug.augment.corpus import MotionClip, Reject
+from motionaug.augment.corpus.humanml3d import read_labels
+from motionaug.augment.methods.base import (
+    ARTIFACT_JSON,
+    StyleModel,
+    StyleTransferMethod,
+    TrainingSpec,
+    TrainProgress,
+    TransferOutput,
+)
+from motionaug.augment.methods.common import (
+    TRAINED_JSON,
+    labelled_training_clips,
+    mark_trained,
+    revised_texts,
+    style_vocab,
+    trained_with,
+    training_record,
+)
+from motionaug.augment.methods.erd.stream import transfer
+from motionaug.augment.methods.erd.training import ErdTrainConfig, load_erd, read_artifact, train_erd
+from motionaug.models.style_erd import NEUTRAL, ErdNetwork
+from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.styles import StyleSpec
+
+METHOD_NAME = "erd"
+
+
+class ErdParams(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    train: ErdTrainConfig = Field(default_factory=ErdTrainConfig)
+    neutral_style: str = Field("neutral", description="The labelled corpus's name for neutral (Bandai: normal).")
+    intensity: float = Field(1.0, ge=0.0, le=1.0, description="Style intensity a (sec. 4.4): z' = r_0 + a r_S.")
+    caption_variants: int = Field(1, ge=1, description="Revised captions per output clip.")
+    seed: int = 0
+
+
+class ErdMethod(StyleTransferMethod):
+    """Style-ERD (Tao et al., CVPR 2022) as a motionaug method."""
+
+    name: ClassVar[str] = METHOD_NAME
+    Params: ClassVar[type[BaseModel]] = ErdParams
+    params: ErdParams
+    trains: ClassVar[bool] = True
+    smoke_params: ClassVar[dict[str, Any]] = {
+        "train": {
+            "steps": 3,
+            "classifier_steps": 2,
+            "batch_size": 4,
+            "classifier_batch_size": 4,
+            "window_s": 0.8,
+            "latent": 8,
+            "enc_hidden": 16,
+            "neutral_layers": 2,
+            "style_layers": 1,
+            "dec_hidden": (16, 16, 16),
+            "disc_channels": (8, 8),
+            "cls_channels": (8, 8),
+        }
+    }
+
+    # ---- once per run: the network ----------------------------------------------------------------------
+
+    def is_trained(self, folder: Path) -> bool:
+        return (Path(folder) / TRAINED_JSON).is_file()
+
+    def train(self, corpus: Path, out: Path, spec: TrainingSpec, progress: TrainProgress | None = None) -> Path:
+        """Fit on the labelled corpus's train split; a folder made from the same corpus and config is reused."""
+        record = training_record(corpus, self.params.train, self.params.neutral_style)
+        if trained_with(out, record):
+            return Path(out)
+        clips = labelled_training_clips(corpus, self.params.neutral_style, NEUTRAL)
+        report = None if progress is None else (lambda step, total, metrics: progress("erd", step, total, metrics))
+        train_erd(clips, out, self.params.train, report)
+        mark_trained(out, record)
+        return Path(out)
+
+    # ---- once per style ---------------------------------------------------------------------------------
+
+    def check_style(self, style: StyleSpec, trained: Path | None, corpus: Path | None = None) -> None:
+        """The style must be one the network learnt (or, before training, one the labelled corpus has)."""
+        if trained is not None and self.is_trained(trained):
+            known = read_artifact(trained).styles
+        elif corpus is not None and Path(corpus).is_dir():
+            known = sorted({r.get("style") for r in read_labels(Path(corpus)).values() if r.get("style")})
+        else:
+            return
+        known = [self.params.neutral_style if s == NEUTRAL else s for s in known]
+        if style.name not in known:
+            raise MotionDataError(
+                f"config styles: {style.name}", f"Style-ERD has no style {style.name!r}; it knows {sorted(known)}"
+            )
+
+    def load(self, artifact: Path, trained: Path | None) -> StyleModel:
+        if trained is None:
+            raise MotionDataError(f"{METHOD_NAME} load", "needs the trained network (the train step's folder)")
+        record = json.loads((Path(artifact) / ARTIFACT_JSON).read_text(encoding="utf-8"))
+        style = StyleSpec.model_validate(record["style"])
+        return ErdStyleModel(style, load_erd(trained), self.params)
+
+
+class ErdStyleModel:
+    """The network and one target style; stylizes batches of whole clips."""
+
+    def __init__(self, style: StyleSpec, net: ErdNetwork, params: ErdParams) -> None:
+        self.spec = style
+        self.style = style.name
+        self.net = net
+        self.params = params
+        self.vocab = style_vocab(style.words, style.name)
+
+    def _name(self, label: str | None) -> str | None:
+        return NEUTRAL if label in (None, self.params.neutral_style) else label
+
+    def transfer(self, clips: Sequence[MotionClip], seed: int = 0) -> list[TransferOutput | Reject]:
+        results: list[TransferOutput | Reject] = []
+        for i, clip in enumerate(clips):
+            try:
+                source_style = self._name(clip.style)
+                content = clip.content if clip.content in self.net.config.contents else None
+                (motion,) = transfer(
+                    self.net,
+                    [clip.motion],
+                    self._name(self.style),
+                    None if source_style == NEUTRAL else source_style,
+                    content,
+                    intensity=self.params.intensity,
+                )
+                captions = revised_texts(clip, self.spec.words, self.params.caption_variants, seed + i, self.vocab)
+                results.append(TransferOutput(source_id=clip.id, style=self.style, motion=motion, captions=captions))
+            except MotionDataError as err:
+                results.append(Reject.from_error(clip.id, err))
+        return results

@@ -1,0 +1,326 @@
+"""UMSD behind the method contract: trained once per run on a labelled corpus, any style zero-shot from examples.
+
+``train`` fits the network on the train split of the labelled corpus (all of it without split files) and is
+reused while the corpus and the training config match. Styles need no learning: ``check_style`` accepts any
+style, ``prepare`` only validates the example clips and stores them normalised in the network's feature space.
+``load`` + ``transfer``: DDIM sampling of x0 conditioned on U(content clip, style example) (sec. 3.1, Fig. 3 right:
+from pure noise down to step 0, the MSM predicting x0 at every step), keeping the content's root trajectory by
+inpainting, with captions revised in the style's words. ``transfer_noise_step`` < 1000 starts instead from the
+content noised to that step (SDEdit), which keeps more of the content's timing.
+"""
+
+from __future__ import annotations
+
+import time
+import zlib
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar, Literal
+
+import numpy as np
+import torch
+from pydantic import BaseModel, ConfigDict, Field
+
+from motionaug.augment.corpus import MotionClip, Reject
+from motionaug.augment.corpus.style_examples import MIN_EXAMPLE_FRAMES, check_motion
+from motionaug.augment.device import bf16_autocast
+from motionaug.augment.diffusion import ddim_sample, start_step_for
+from motionaug.augment.eval.inputs import pad_batch
+from motionaug.augment.methods.base import (
+    ARTIFACT_WEIGHTS,
+    Progress,
+    StyleModel,
+    StyleTransferMethod,
+    TrainingSpec,
+    TrainProgress,
+    TransferOutput,
+)
+from motionaug.augment.methods.common import (
+    TRAINED_JSON,
+    MotionBatch,
+    clip_noise,
+    configure_threads,
+    files_fingerprint,
+    labelled_training_clips,
+    mark_trained,
+    read_artifact_json,
+    read_tensors,
+    revised_texts,
+    style_vocab,
+    tensor_bytes,
+    trained_with,
+    training_record,
+    trajectory_channels,
+    write_artifact,
+)
+from motionaug.augment.methods.umsd.training import (
+    META_FILE,
+    NEUTRAL,
+    WEIGHTS_FILE,
+    UmsdModel,
+    UmsdTrainConfig,
+    load_umsd,
+    train_umsd,
+)
+from motionaug.schemas.captions import Caption
+from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.styles import StyleSpec
+
+METHOD_NAME = "umsd"
+NUM_TIMESTEPS = 1000
+
+
+class UmsdParams(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    train: UmsdTrainConfig = Field(default_factory=UmsdTrainConfig)
+    neutral_style: str = Field("neutral", description="The labelled corpus's name for neutral (Bandai: normal).")
+    ddim_steps: int = Field(50, ge=1, le=NUM_TIMESTEPS, description="DDIM steps of a transfer (eta below)")
+    eta: float = Field(0.0, ge=0.0, le=1.0, description="DDIM eta (0: deterministic given the initial noise)")
+    transfer_noise_step: int = Field(
+        NUM_TIMESTEPS,
+        ge=1,
+        le=NUM_TIMESTEPS,
+        description="1000: sample from pure noise (the paper); K < 1000: start from the content noised to step K",
+    )
+    guidance: Literal["none"] = Field(
+        "none", description="no classifier-free guidance: the network is trained without condition dropout"
+    )
+    keep: Literal["horizontal", "root", "none"] = Field(
+        "horizontal", description="content channels kept by inpainting: root xz + yaw velocities (+ height: root)"
+    )
+    batch_size: int = Field(16, ge=1, description="clips per sampling batch")
+    bf16: bool | None = Field(False, description="bf16 autocast for sampling (None: where the CPU has bf16 units)")
+    min_frames: int = Field(MIN_EXAMPLE_FRAMES, ge=2, description="shorter content clips and examples are rejected")
+    caption_variants: int = Field(1, ge=1, description="Revised captions per output clip.")
+    seed: int = Field(0, description="added to the workflow's seed for the sampling noise")
+
+
+class UmsdArtifact(BaseModel):
+    """A style's ``artifact.json``: the style and where its normalised examples came from."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    version: int = 1
+    method: Literal["umsd"] = METHOD_NAME
+    style: StyleSpec
+    examples: list[str]
+    example_frames: list[int]  # as stored (the middle ``train.max_frames`` of a longer example)
+    trained_fingerprint: str
+    weights_bytes: int
+    seconds: float
+
+
+def trained_fingerprint(folder: Path) -> str:
+    """Ties a style artefact to the network its examples were normalised for."""
+    return files_fingerprint(folder, [META_FILE, WEIGHTS_FILE], "UMSD model file")
+
+
+class UmsdMethod(StyleTransferMethod):
+    """UMSD (Qian et al., ACM MM 2025) as a motionaug method."""
+
+    name: ClassVar[str] = METHOD_NAME
+    Params: ClassVar[type[BaseModel]] = UmsdParams
+    params: UmsdParams
+    trains: ClassVar[bool] = True
+    smoke_params: ClassVar[dict[str, Any]] = {
+        "train": {
+            "steps": 3,
+            "batch_size": 2,
+            "max_frames": 40,
+            "d_model": 32,
+            "n_heads": 2,
+            "ff_size": 64,
+            "msm_blocks": 1,
+            "d_state": 4,
+            "log_every": 1,
+        },
+        "ddim_steps": 4,
+        "batch_size": 4,
+    }
+
+    # ---- once per run: the network ----------------------------------------------------------------------
+
+    def is_trained(self, folder: Path) -> bool:
+        return (Path(folder) / TRAINED_JSON).is_file()
+
+    def train(self, corpus: Path, out: Path, spec: TrainingSpec, progress: TrainProgress | None = None) -> Path:
+        """Fit on the labelled corpus's train split; a folder made from the same corpus and config is reused."""
+        record = training_record(corpus, self.params.train, self.params.neutral_style)
+        if trained_with(out, record):
+            return Path(out)
+        clips = labelled_training_clips(corpus, self.params.neutral_style, NEUTRAL)
+        report = None if progress is None else (lambda step, total, metrics: progress("umsd", step, total, metrics))
+        train_umsd(clips, out, self.params.train, report)
+        mark_trained(out, record)
+        return Path(out)
+
+    # ---- once per style ---------------------------------------------------------------------------------
+
+    def check_style(self, style: StyleSpec, trained: Path | None, corpus: Path | None = None) -> None:
+        """Any style: UMSD takes the style from an example motion (zero-shot, sec. 4.4), not from a label."""
+
+    def prepare(
+        self,
+        style: StyleSpec,
+        examples: Sequence[MotionClip],
+        trained: Path | None,
+        content: Sequence[MotionClip],
+        out: Path,
+        seed: int | None = None,
+        progress: Progress | None = None,
+    ) -> Path:
+        """No learning: validate the examples, normalise them for the trained network, store them.
+
+        An example longer than the network's training crop (``train.max_frames``) is cut to its middle that many
+        frames: style inputs were never longer in training.
+        """
+        start = time.perf_counter()
+        if trained is None:
+            raise MotionDataError(f"{METHOD_NAME} prepare", "needs the trained network (the train step's folder)")
+        if not examples:
+            raise MotionDataError(f"style {style.name!r}", "no example clips")
+        model = load_umsd(trained)
+        weights = {}
+        for i, example in enumerate(examples):
+            motion = check_motion(example.motion, f"style {style.name!r} example {example.id}", model.normalizer.dim)
+            motion = self._checked_length(motion, model, f"style {style.name!r} example {example.id}")
+            if example.fps != model.info.fps:
+                raise MotionDataError(f"style {style.name!r} example {example.id}", self._fps_reason(example, model))
+            longest = model.info.train.max_frames
+            if motion.shape[0] > longest:
+                first = (motion.shape[0] - longest) // 2
+                motion = motion[first : first + longest]
+            weights[f"example.{i}"] = torch.from_numpy(model.normalizer.normalize(motion).astype(np.float32))
+        info = UmsdArtifact(
+            style=style,
+            examples=[e.id for e in examples],
+            example_frames=[int(w.shape[0]) for w in weights.values()],
+            trained_fingerprint=trained_fingerprint(Path(trained)),
+            weights_bytes=tensor_bytes(weights),
+            seconds=time.perf_counter() - start,
+        )
+        return write_artifact(Path(out), info, weights)
+
+    def _checked_length(self, motion: np.ndarray, model: UmsdModel, source: str) -> np.ndarray:
+        if motion.shape[0] < self.params.min_frames:
+            raise MotionDataError(source, f"too short: {motion.shape[0]} frames < {self.params.min_frames}")
+        if motion.shape[0] > model.net.config.max_len:
+            raise MotionDataError(source, f"{motion.shape[0]} frames exceed the network's {model.net.config.max_len}")
+        return motion
+
+    @staticmethod
+    def _fps_reason(clip: MotionClip, model: UmsdModel) -> str:
+        return f"{clip.fps:g} fps, the network was trained at {model.info.fps:g} fps"
+
+    def load(self, artifact: Path, trained: Path | None) -> StyleModel:
+        if trained is None:
+            raise MotionDataError(f"{METHOD_NAME} load", "needs the trained network (the train step's folder)")
+        configure_threads()
+        info = read_artifact_json(Path(artifact), UmsdArtifact, METHOD_NAME, "a UMSD style artefact")
+        found = trained_fingerprint(Path(trained))
+        if found != info.trained_fingerprint:
+            raise MotionDataError(
+                str(artifact), f"prepared for UMSD network {info.trained_fingerprint}, {trained} is {found}"
+            )
+        tensors = read_tensors(Path(artifact) / ARTIFACT_WEIGHTS)
+        examples = [tensors[f"example.{i}"] for i in range(len(info.examples))]
+        return UmsdStyleModel(info.style, load_umsd(trained), examples, self.params)
+
+
+@dataclass
+class _Job:
+    index: int
+    clip: MotionClip
+    motion: np.ndarray  # validated raw features
+    captions: list[Caption]
+
+
+class UmsdStyleModel:
+    """The trained network and one style's examples; stylizes batches of whole clips (``StyleModel``)."""
+
+    def __init__(self, style: StyleSpec, model: UmsdModel, examples: Sequence[torch.Tensor], params: UmsdParams):
+        if not examples:
+            raise MotionDataError(f"style {style.name!r}", "no example motions")
+        self.spec = style
+        self.style = style.name
+        self.model = model
+        self.net = model.net.eval().requires_grad_(False)
+        self.examples = [e.float() for e in examples]
+        self.params = params
+        self.vocab = style_vocab(style.words, style.name)
+        self.kept = [] if params.keep == "none" else trajectory_channels(params.keep)
+
+    def _job(self, index: int, clip: MotionClip, seed: int) -> _Job:
+        source = f"clip {clip.id}"
+        motion = check_motion(clip.motion, source, self.model.normalizer.dim, self.params.min_frames)
+        if motion.shape[0] > self.net.config.max_len:
+            raise MotionDataError(source, f"{motion.shape[0]} frames exceed the network's {self.net.config.max_len}")
+        if clip.fps != self.model.info.fps:
+            raise MotionDataError(source, UmsdMethod._fps_reason(clip, self.model))
+        clip_seed = seed + zlib.crc32(clip.id.encode("utf-8"))
+        captions = revised_texts(clip, self.spec.words, self.params.caption_variants, clip_seed, self.vocab)
+        return _Job(index, clip, motion, captions)
+
+    def example_for(self, clip_id: str) -> torch.Tensor:
+        """The style example a clip is conditioned on: one per clip, chosen by its id (batch-independent)."""
+        return self.examples[zlib.crc32(clip_id.encode("utf-8")) % len(self.examples)]
+
+    def transfer(self, clips: Sequence[MotionClip], seed: int = 0) -> list[TransferOutput | Reject]:
+        """Stylize a batch; a clip that cannot be used (NaN, wrong width, too short or long) is a ``Reject``."""
+        results: list[TransferOutput | Reject | None] = [None] * len(clips)
+        jobs: list[_Job] = []
+        for i, clip in enumerate(clips):
+            try:
+                jobs.append(self._job(i, clip, seed))
+            except MotionDataError as err:
+                results[i] = Reject.from_error(clip.id, err)
+        size = self.params.batch_size
+        for start in range(0, len(jobs), size):
+            chunk = jobs[start : start + size]
+            for job, output in zip(chunk, self._transfer_batch(chunk, seed)):
+                results[job.index] = output
+        return [r for r in results if r is not None]
+
+    @torch.no_grad()
+    def sample(self, content: MotionBatch, style: torch.Tensor, style_mask: torch.Tensor, noise: torch.Tensor):
+        """DDIM from pure noise (or from the content noised to ``transfer_noise_step``) with the condition
+        U(content, style) computed once; the kept channels are inpainted from the content. Normalised (B, T, F)."""
+        p = self.params
+        partial = p.transfer_noise_step < NUM_TIMESTEPS
+        with bf16_autocast(p.bf16):
+            cond = self.net.condition(content.x, content.mask, style, style_mask)
+
+            def model_fn(x_t: torch.Tensor, t: torch.Tensor, *, uncond: bool = False) -> torch.Tensor:
+                return self.net.denoise(x_t, t, cond, content.mask).to(x_t.dtype)
+
+            return ddim_sample(
+                model_fn,
+                content.x.shape,
+                steps=p.ddim_steps,
+                eta=p.eta,
+                start_step=start_step_for(p.transfer_noise_step, p.ddim_steps) if partial else None,
+                x_start=content.x if partial else None,
+                noise=noise,
+                inpaint=content.inpaint(self.kept) if self.kept else None,
+            ).float()
+
+    def _transfer_batch(self, jobs: Sequence[_Job], seed: int) -> list[TransferOutput | Reject]:
+        norm = self.model.normalizer
+        content = MotionBatch.from_motions([norm.normalize(j.motion) for j in jobs], None)
+        style, style_mask = pad_batch([self.example_for(j.clip.id) for j in jobs])
+        noise = clip_noise(content.x.shape, [j.clip.id for j in jobs], seed + self.params.seed)
+        out = self.sample(content, style, style_mask, noise)
+        results: list[TransferOutput | Reject] = []
+        for i, job in enumerate(jobs):
+            frames = job.motion.shape[0]
+            motion = norm.denormalize(out[i, :frames].numpy()).astype(np.float32)
+            motion[:, self.kept] = job.motion[:, self.kept]  # exactly the content's, not up to rounding
+            if not np.isfinite(motion).all():
+                results.append(Reject(id=job.clip.id, source=f"clip {job.clip.id}", reason="non-finite UMSD output"))
+                continue
+            results.append(
+                TransferOutput(source_id=job.clip.id, style=self.style, motion=motion, captions=job.captions)
+            )
+        return results

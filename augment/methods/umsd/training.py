@@ -1,0 +1,491 @@
+"""Train UMSD (Qian et al., ACM MM 2025, sec. 3.4) on labelled clips; save and load the network.
+
+Every step draws rows of three kinds from the labelled clips (style and content labels; clips of the synthetic
+corpus that are renderings of the same motion spec in different styles are paired frame for frame):
+
+- ``rec`` (ours, supervised transfer): target x0 = a clip of style s with content c; condition content = a clip of
+  content c in another style (neutral when there is one: what a transfer is given); condition style = another
+  clip of style s with other content. Noisy input: the target at t. The paper has no such term (its datasets
+  have no style-transferred ground truth); with labelled pairs it is the one term that teaches transfer itself.
+- ``dcc``, Eq. 10: content m^c and style example n^s *share the style* (c = s), so the output must be the content
+  itself: MSM(m_t^c, t, U(m_0^c, n_0^s)) vs m_0^c, L1. The style example is another clip of the same style label,
+  other content where possible.
+- ``dsc``, Eq. 11: content m^c and style example n^s *share the content* (m = n), so the output must be the style
+  motion: MSM(n_t^s, t, U(m_0^c, n_0^s)) vs n_0^s, L1. The pair is a same-spec rendering in another style where the
+  corpus has one, else a clip with the same content label in another style. As the paper writes it, the target
+  is also the style input (the network may copy it); ``rec`` is the non-leaking version.
+
+Eq. 12 adds L_pos, L_vel and L_foot (Shi et al. 2020; Tevet et al. 2022), computed here on *global joint
+positions* recovered from the predicted features (``recover_from_ric``: the root-relative positions block and
+the integrated root), in metres: L1 on positions, L1 on joint velocities (m/s), and the predicted ankle/toe
+speed (m/s) on the frames where the target's foot-contact channels say the foot is planted. Every term applies
+to every row against the row's own target.
+
+The diffusion reconstruction terms use L1 (Eqs. 10-11); the network predicts x0 (sec. 3.4, Ramesh et al.).
+``train_umsd`` runs a fixed number of steps (never a wall-clock cap) and is bit-identical for the same clips,
+config, seed and thread count. Output folder (written to a temporary sibling, then renamed into place):
+``umsd.safetensors`` (weights) and ``umsd.json`` (``UmsdTrainArtifact``: network config, normaliser, training
+config, data summary, losses).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import torch
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+from safetensors.torch import load_file
+from torch import Tensor
+
+from motionaug.augment.corpus.clip import MotionClip
+from motionaug.augment.diffusion import NoiseSchedule, q_sample
+from motionaug.augment.eval.inputs import pad_batch
+from motionaug.augment.io import read_json_model
+from motionaug.augment.methods.base import Progress
+from motionaug.augment.methods.common import write_model_folder
+from motionaug.augment.motion.features import Normalizer, compute_mean_std, feature_slices, recover_from_ric
+from motionaug.models.umsd import UmsdConfig, UmsdNet
+from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.skeleton import T2M
+
+WEIGHTS_FILE = "umsd.safetensors"
+META_FILE = "umsd.json"
+NEUTRAL = "neutral"
+TERMS = ("rec", "dcc", "dsc")
+FOOT_JOINTS = (*T2M.feet_left, *T2M.feet_right)  # the order of the four foot-contact channels
+
+
+class UmsdTrainConfig(BaseModel):
+    """How to train UMSD. The paper gives AdamW and lr 1e-6 for ~10 GPU hours (sec. 4.1); a fixed CPU step budget
+    needs a larger rate, so lr defaults to 1e-4."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    steps: int = Field(2000, ge=1, description="optimiser steps (a fixed count; there is no time cap)")
+    batch_size: int = Field(8, ge=1, description="rows per loss term and step (rec, dcc, dsc each)")
+    lr: float = Field(1e-4, gt=0, description="AdamW learning rate (sec. 4.1: AdamW)")
+    weight_decay: float = Field(0.01, ge=0)
+    grad_clip: float = Field(1.0, gt=0, description="gradient-norm clip")
+    max_frames: int = Field(120, ge=8, description="training crop per clip, frames (6 s at 20 fps)")
+    min_frames: int = Field(20, ge=2, description="shorter clips are not trained on")
+    w_rec: float = Field(1.0, ge=0, description="supervised transfer term (not in the paper, see the module doc)")
+    w_dcc: float = Field(1.0, ge=0, description="Eq. 10 / Eq. 12 weight")
+    w_dsc: float = Field(1.0, ge=0, description="Eq. 11 / Eq. 12 weight")
+    w_pos: float = Field(1.0, ge=0, description="Eq. 12: joint positions, metres")
+    w_vel: float = Field(1.0, ge=0, description="Eq. 12: joint velocities, m/s")
+    w_foot: float = Field(1.0, ge=0, description="Eq. 12: planted-foot speed, m/s")
+    use_dcc: bool = Field(True, description="ablation switch for L_dcc (sec. 4.5)")
+    use_dsc: bool = Field(True, description="ablation switch for L_dsc (sec. 4.5)")
+    exclude_styles: tuple[str, ...] = Field((), description="styles held out of training (zero-shot, sec. 4.4)")
+    seed: int = 0
+    threads: int = Field(1, ge=1, description="torch threads while training (part of what makes runs identical)")
+    log_every: int = Field(50, ge=1, description="history interval, steps")
+    # network (``motionaug.models.umsd.UmsdConfig``); the paper gives no widths: CPU-sized defaults (3-4 s a step,
+    # one thread, on a shared 2-core box at load 6.5: bench/bench_umsd.py); its ``--preset large`` (d_model 128,
+    # ff 512, d_state 16, batch 16) is about 4x slower
+    d_model: int = Field(64, ge=1)
+    n_heads: int = Field(4, ge=1)
+    ff_size: int = Field(256, ge=1)
+    msm_blocks: int = Field(3, ge=1, description="Eq. 7 iterations (paper: 3)")
+    d_state: int = Field(8, ge=1)
+    expand: int = Field(2, ge=1)
+    d_conv: int = Field(4, ge=1)
+    dropout: float = Field(0.1, ge=0, lt=1)
+    max_len: int = Field(1024, ge=8, description="longest sequence the network takes (transfer too)")
+    denoiser: Literal["msm", "transformer"] = "msm"
+    use_ssm: bool = True
+    use_mha: bool = True
+
+    @model_validator(mode="after")
+    def _check(self) -> UmsdTrainConfig:
+        if self.d_model % self.n_heads:
+            raise ValueError(f"d_model {self.d_model} is not a multiple of n_heads {self.n_heads}")
+        if self.max_frames > self.max_len:
+            raise ValueError(f"max_frames {self.max_frames} > max_len {self.max_len}")
+        if self.min_frames > self.max_frames:
+            raise ValueError(f"min_frames {self.min_frames} > max_frames {self.max_frames}")
+        return self
+
+    def network(self, n_feats: int = T2M.feature_dim) -> UmsdConfig:
+        return UmsdConfig(
+            n_feats=n_feats,
+            d_model=self.d_model,
+            n_heads=self.n_heads,
+            ff_size=self.ff_size,
+            msm_blocks=self.msm_blocks,
+            d_state=self.d_state,
+            expand=self.expand,
+            d_conv=self.d_conv,
+            dropout=self.dropout,
+            max_len=self.max_len,
+            denoiser=self.denoiser,
+            use_ssm=self.use_ssm,
+            use_mha=self.use_mha,
+        )
+
+    def weights(self) -> dict[str, float]:
+        """Per diffusion term; an ablated term weighs 0."""
+        return {
+            "rec": self.w_rec,
+            "dcc": self.w_dcc if self.use_dcc else 0.0,
+            "dsc": self.w_dsc if self.use_dsc else 0.0,
+        }
+
+
+class UmsdTrainArtifact(BaseModel):
+    """``umsd.json``: everything but the weights."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    version: int = 1
+    method: Literal["umsd"] = "umsd"
+    network: dict[str, Any]
+    fps: float
+    normalizer: dict[str, list[float]]
+    train: UmsdTrainConfig
+    data: dict[str, Any]
+    final: dict[str, float]
+    history: list[dict[str, float]]
+    seconds: float
+
+
+# ---- data ---------------------------------------------------------------------------------------------------
+
+
+def spec_key(clip: MotionClip) -> str | None:
+    """The clip's synthetic motion spec without its style fields: equal keys = the same motion in other styles."""
+    raw = clip.meta.get("spec") if clip.meta else None
+    if not raw:
+        return None
+    try:
+        spec = json.loads(raw)
+    except ValueError:
+        return None
+    if not isinstance(spec, dict):
+        return None
+    return json.dumps({k: v for k, v in spec.items() if k not in ("style", "intensity")}, sort_keys=True)
+
+
+@dataclass
+class UmsdData:
+    """Labelled clips ready to sample: normalised motions and, per clip, its partners for each loss term."""
+
+    ids: list[str]
+    motions: list[np.ndarray]  # normalised float32 (T, F)
+    styles: list[str]
+    contents: list[str | None]
+    spec_keys: list[str | None]
+    fps: float
+    normalizer: Normalizer
+    same_motion: list[list[int]]  # same spec (else same content label), another style: Eq. 11's pair, rec's content
+    same_style: list[list[int]]  # same style, other content where possible: Eq. 10's pair, rec's style example
+    eligible: dict[str, np.ndarray]  # per term, the clips that can be its row's anchor
+    dropped: dict[str, int]
+
+    def summary(self) -> dict[str, Any]:
+        count = lambda names: {n: names.count(n) for n in sorted(set(names))}  # noqa: E731
+        return {
+            "clips": len(self.motions),
+            "styles": count(self.styles),
+            "contents": count([c or "<none>" for c in self.contents]),
+            "spec_pairs": sum(
+                1
+                for i, js in enumerate(self.same_motion)
+                if js and self.spec_keys[i] is not None and self.spec_keys[js[0]] == self.spec_keys[i]
+            ),
+            "eligible": {k: int(len(v)) for k, v in self.eligible.items()},
+            "dropped": self.dropped,
+        }
+
+
+def _partners(styles: list[str], contents: list[str | None], keys: list[str | None]) -> tuple[list, list]:
+    n = len(styles)
+    same_motion, same_style = [], []
+    for i in range(n):
+        by_spec = [j for j in range(n) if keys[i] is not None and keys[j] == keys[i] and styles[j] != styles[i]]
+        by_label = [
+            j for j in range(n) if contents[i] is not None and contents[j] == contents[i] and styles[j] != styles[i]
+        ]
+        same_motion.append(by_spec or by_label)
+        style_mates = [j for j in range(n) if j != i and styles[j] == styles[i]]
+        other_content = [j for j in style_mates if contents[j] is None or contents[j] != contents[i]]
+        same_style.append(other_content or style_mates)
+    return same_motion, same_style
+
+
+def prepare_data(clips: Sequence[MotionClip], config: UmsdTrainConfig | None = None) -> UmsdData:
+    """Check labels and motions, drop held-out styles and short clips, normalise with the kept clips' Mean/Std,
+    and find every clip's partners. Every clip needs a style label; content labels may be missing."""
+    config = config or UmsdTrainConfig()
+    if not clips:
+        raise MotionDataError("UMSD training", "no clips")
+    unlabelled = [c.id for c in clips if not c.style]
+    if unlabelled:
+        raise MotionDataError("UMSD training", f"{len(unlabelled)} clips without a style label, e.g. {unlabelled[0]}")
+    for c in clips:
+        m = np.asarray(c.motion)
+        if m.ndim != 2 or m.shape[1] != T2M.feature_dim or not np.isfinite(m).all():
+            raise MotionDataError(f"clip {c.id}", f"need finite (T, {T2M.feature_dim}) features, got shape {m.shape}")
+    held_out = set(config.exclude_styles)
+    kept = [c for c in clips if c.style not in held_out]
+    long_enough = [c for c in kept if c.n_frames >= config.min_frames]
+    dropped = {"held_out": len(clips) - len(kept), "short": len(kept) - len(long_enough)}
+    if not long_enough:
+        raise MotionDataError("UMSD training", f"no clip left with >= {config.min_frames} frames")
+    rates = {float(c.fps) for c in long_enough}
+    if len(rates) != 1:
+        raise MotionDataError("UMSD training", f"clips mix frame rates {sorted(rates)}")
+    norm = compute_mean_std(c.motion for c in long_enough)
+    styles = [str(c.style) for c in long_enough]
+    contents = [c.content for c in long_enough]
+    keys = [spec_key(c) for c in long_enough]
+    same_motion, same_style = _partners(styles, contents, keys)
+    weights = config.weights()
+    anchors = {
+        "rec": [i for i in range(len(styles)) if same_motion[i] and same_style[i]],
+        "dcc": [i for i in range(len(styles)) if same_style[i]],
+        "dsc": [i for i in range(len(styles)) if same_motion[i]],
+    }
+    eligible = {k: np.array(v, dtype=np.int64) for k, v in anchors.items() if weights[k] > 0 and v}
+    if not eligible:
+        raise MotionDataError(
+            "UMSD training", "no trainable pair: need two clips of one style, or one motion in two styles"
+        )
+    return UmsdData(
+        ids=[c.id for c in long_enough],
+        motions=[norm.normalize(np.asarray(c.motion, dtype=np.float32)).astype(np.float32) for c in long_enough],
+        styles=styles,
+        contents=contents,
+        spec_keys=keys,
+        fps=rates.pop(),
+        normalizer=norm,
+        same_motion=same_motion,
+        same_style=same_style,
+        eligible=eligible,
+        dropped=dropped,
+    )
+
+
+# ---- the trainer ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class UmsdBatch:
+    """Rows of every active term, padded: target x0, its condition, and the noising (t, noise)."""
+
+    kinds: list[str]
+    x0: Tensor
+    x_mask: Tensor
+    content: Tensor
+    content_mask: Tensor
+    style: Tensor
+    style_mask: Tensor
+    t: Tensor
+    noise: Tensor
+
+
+class UmsdTrainer:
+    """Network, optimiser, data sampler. ``sample()`` draws a batch, ``train_step`` updates, ``losses`` evaluates
+    (tests use it on a fixed batch)."""
+
+    def __init__(self, data: UmsdData, config: UmsdTrainConfig) -> None:
+        self.data, self.config = data, config
+        self.net = UmsdNet(config.network())
+        self.opt = torch.optim.AdamW(self.net.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+        self.schedule = NoiseSchedule.cosine()
+        self.rng = np.random.default_rng([config.seed, 1])
+        self.noise_gen = torch.Generator().manual_seed(config.seed)
+        self.neutral = [[j for j in js if data.styles[j] == NEUTRAL] for js in data.same_motion]
+        self.mean = torch.from_numpy(data.normalizer.mean)
+        self.std = torch.from_numpy(data.normalizer.std)
+        self.feet = feature_slices(T2M)["feet"]
+
+    # -- sampling --
+
+    def _pick(self, options: Sequence[int]) -> int:
+        return int(options[int(self.rng.integers(0, len(options)))])
+
+    def _crop(self, i: int, start: int | None = None) -> tuple[np.ndarray, int]:
+        """A window of at most ``max_frames``; ``start`` (clamped) keeps two renderings of one spec aligned."""
+        motion = self.data.motions[i]
+        room = len(motion) - self.config.max_frames
+        if room <= 0:
+            return motion, 0
+        s = int(self.rng.integers(0, room + 1)) if start is None else min(start, room)
+        return motion[s : s + self.config.max_frames], s
+
+    def _row(self, kind: str, anchor: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(target, content, style) motions of one row (see the module doc for each kind)."""
+        d = self.data
+        if kind == "rec":
+            target, content = anchor, self._pick(self.neutral[anchor] or d.same_motion[anchor])
+            style = self._pick(d.same_style[anchor])
+        elif kind == "dcc":  # Eq. 10: c = s, target = the content clip
+            target = content = anchor
+            style = self._pick(d.same_style[anchor])
+        else:  # Eq. 11: m = n, target = the style clip
+            target = style = anchor
+            content = self._pick(d.same_motion[anchor])
+        x0, start = self._crop(target)
+        aligned = d.spec_keys[target] is not None and d.spec_keys[content] == d.spec_keys[target]
+        c = x0 if content == target else self._crop(content, start if aligned else None)[0]
+        s = x0 if style == target else self._crop(style)[0]
+        return x0, c, s
+
+    def sample(self) -> UmsdBatch:
+        kinds, rows = [], []
+        for kind, anchors in self.data.eligible.items():
+            for i in self.rng.choice(anchors, size=self.config.batch_size):
+                kinds.append(kind)
+                rows.append(self._row(kind, int(i)))
+        x0, x_mask = pad_batch([r[0] for r in rows])
+        content, content_mask = pad_batch([r[1] for r in rows])
+        style, style_mask = pad_batch([r[2] for r in rows])
+        t = torch.randint(0, len(self.schedule), (len(rows),), generator=self.noise_gen)
+        noise = torch.randn(x0.shape, generator=self.noise_gen)
+        return UmsdBatch(kinds, x0, x_mask, content, content_mask, style, style_mask, t, noise)
+
+    # -- losses --
+
+    def _joints(self, x: Tensor) -> Tensor:
+        """Normalised features (B, T, F) -> global joints (B, T, J, 3), metres."""
+        return recover_from_ric(x * self.std + self.mean, T2M.n_joints)
+
+    def losses(self, batch: UmsdBatch) -> dict[str, Tensor]:
+        """Eq. 12: the active diffusion terms (L1, Eqs. 10-11 and rec) + L_pos + L_vel + L_foot, and their total."""
+        cfg = self.config
+        mask = batch.x_mask
+        x_t = q_sample(self.schedule, batch.x0 * mask[..., None], batch.t, batch.noise)
+        pred = self.net(x_t, batch.t, batch.content, batch.content_mask, batch.style, batch.style_mask, mask)
+        keep = mask[..., None].float()
+        frames = keep.sum(dim=(1, 2)).clamp(min=1)
+        l1 = ((pred - batch.x0).abs() * keep).sum(dim=(1, 2)) / (frames * pred.shape[-1])  # (B,)
+        out: dict[str, Tensor] = {}
+        total = pred.new_zeros(())
+        kinds = np.array(batch.kinds)
+        for kind, weight in cfg.weights().items():
+            rows = torch.from_numpy(np.flatnonzero(kinds == kind))
+            if len(rows):
+                out[kind] = l1[rows].mean()
+                total = total + weight * out[kind]
+        # Eq. 12's geometric terms on recovered global joints
+        pj, tj = self._joints(pred), self._joints(batch.x0)
+        jk = keep[..., None]  # (B, T, 1, 1)
+        n_j = T2M.n_joints
+        out["pos"] = ((pj - tj).abs() * jk).sum() / (jk.sum() * n_j * 3).clamp(min=1)
+        pair = (mask[:, 1:] & mask[:, :-1])[..., None, None].float()  # steps between two real frames
+        pv, tv = (pj[:, 1:] - pj[:, :-1]) * self.data.fps, (tj[:, 1:] - tj[:, :-1]) * self.data.fps
+        out["vel"] = ((pv - tv).abs() * pair).sum() / (pair.sum() * n_j * 3).clamp(min=1)
+        # contact channels [l ankle, l toe, r ankle, r toe] at frame i refer to the step i -> i+1
+        contact = (batch.x0[:, :-1, self.feet] * self.std[self.feet] + self.mean[self.feet]) > 0.5
+        planted = contact.float() * pair[..., 0]  # (B, T-1, 4)
+        speed = pv[:, :, list(FOOT_JOINTS)].norm(dim=-1)  # (B, T-1, 4)
+        out["foot"] = (speed * planted).sum() / planted.sum().clamp(min=1)
+        total = total + cfg.w_pos * out["pos"] + cfg.w_vel * out["vel"] + cfg.w_foot * out["foot"]
+        out["total"] = total
+        return out
+
+    def train_step(self, batch: UmsdBatch) -> dict[str, float]:
+        self.net.train()
+        losses = self.losses(batch)
+        self.opt.zero_grad(set_to_none=True)
+        losses["total"].backward()
+        torch.nn.utils.clip_grad_norm_(self.net.parameters(), self.config.grad_clip)
+        self.opt.step()
+        return {k: v.detach().item() for k, v in losses.items()}
+
+    @torch.no_grad()
+    def evaluate(self, batch: UmsdBatch) -> dict[str, float]:
+        """The losses on ``batch`` in eval mode (no dropout), without updating anything."""
+        self.net.eval()
+        return {k: v.item() for k, v in self.losses(batch).items()}
+
+
+# ---- public API -----------------------------------------------------------------------------------------------
+
+
+def train_umsd(
+    clips: Sequence[MotionClip],
+    out_dir: str | os.PathLike[str],
+    config: UmsdTrainConfig | None = None,
+    progress: Progress | None = None,
+) -> Path:
+    """Train UMSD on labelled clips and write the model folder ``out_dir``; returns its path.
+
+    ``clips``: HumanML3D-feature clips with ``style`` labels (content labels and synthetic ``meta['spec']`` make the
+    pairs). Same clips + config (seed, threads) -> bit-identical weights. ``progress(step, total, metrics)`` is
+    called after every step. An existing ``out_dir`` is replaced only once the new folder is complete.
+    """
+    config = config or UmsdTrainConfig()
+    start = time.perf_counter()
+    data = prepare_data(clips, config)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(config.threads)
+    try:
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(config.seed)
+            trainer = UmsdTrainer(data, config)
+            history: list[dict[str, float]] = []
+            window: dict[str, float] = {}
+            for step in range(config.steps):
+                metrics = trainer.train_step(trainer.sample())
+                if not all(math.isfinite(v) for v in metrics.values()):
+                    raise MotionDataError("UMSD training", f"non-finite loss at step {step + 1}: {metrics}")
+                for k, v in metrics.items():
+                    window[k] = window.get(k, 0.0) + v
+                if (step + 1) % config.log_every == 0 or step + 1 == config.steps:
+                    count = (step % config.log_every) + 1
+                    history.append({"step": float(step + 1)} | {k: v / count for k, v in window.items()})
+                    window = {}
+                if progress is not None:
+                    progress(step + 1, config.steps, metrics)
+    finally:
+        torch.set_num_threads(threads)
+    artifact = UmsdTrainArtifact(
+        network=trainer.net.config.to_dict(),
+        fps=data.fps,
+        normalizer={"mean": data.normalizer.mean.tolist(), "std": data.normalizer.std.tolist()},
+        train=config,
+        data=data.summary(),
+        final={k: v for k, v in history[-1].items() if k != "step"},
+        history=history,
+        seconds=time.perf_counter() - start,
+    )
+    return write_model_folder(
+        Path(out_dir), {WEIGHTS_FILE: trainer.net.state_dict()}, {META_FILE: artifact.model_dump_json(indent=1)}
+    )
+
+
+def read_artifact(path: str | os.PathLike[str]) -> UmsdTrainArtifact:
+    """The ``umsd.json`` of a model folder."""
+    return read_json_model(Path(path) / META_FILE, UmsdTrainArtifact, "a UMSD model folder")
+
+
+@dataclass
+class UmsdModel:
+    """A trained UMSD: the network (eval mode), the normaliser it works in, and its record."""
+
+    net: UmsdNet
+    normalizer: Normalizer
+    info: UmsdTrainArtifact
+
+
+def load_umsd(path: str | os.PathLike[str]) -> UmsdModel:
+    """The network of a folder written by ``train_umsd`` (safetensors: weights only, no pickle)."""
+    folder = Path(path)
+    info = read_artifact(folder)
+    try:
+        net = UmsdNet(UmsdConfig.from_dict(info.network))
+        net.load_state_dict(load_file(str(folder / WEIGHTS_FILE)), strict=True)
+    except Exception as err:  # safetensors, shape or key mismatches: one line, naming the folder
+        raise MotionDataError(str(folder), f"unreadable UMSD weights ({str(err).splitlines()[0]})") from None
+    normalizer = Normalizer(np.asarray(info.normalizer["mean"]), np.asarray(info.normalizer["std"]))
+    return UmsdModel(net.eval().requires_grad_(False), normalizer, info)

@@ -1,0 +1,261 @@
+"""UMSD (Qian et al., ACM MM 2025): the network, its training and the method behind the workflow contract.
+
+Everything runs at tiny sizes on a 24-clip synthetic corpus (a few seconds of rendering, shared by the module).
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from motionaug.augment.corpus import Corpus, MotionClip, Reject
+from motionaug.augment.methods.base import ARTIFACT_JSON, TrainingSpec, TransferOutput
+from motionaug.augment.methods.common import trajectory_channels
+from motionaug.augment.methods.umsd import (
+    UmsdTrainConfig,
+    UmsdTrainer,
+    load_umsd,
+    prepare_data,
+    read_artifact,
+    train_umsd,
+)
+from motionaug.augment.methods.umsd.method import UmsdMethod
+from motionaug.augment.synth import generate_corpus
+from motionaug.models.umsd import UmsdConfig, UmsdNet, pack
+from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.styles import StyleSpec
+
+TINY = {
+    "d_model": 32,
+    "n_heads": 2,
+    "ff_size": 64,
+    "msm_blocks": 2,
+    "d_state": 4,
+    "max_frames": 40,
+    "batch_size": 3,
+    "threads": 1,
+    "log_every": 1,
+}
+HELD_OUT = "old"
+
+
+@pytest.fixture(scope="module", autouse=True)
+def one_thread():
+    """Tiny tensors: one thread is fastest, and two spin-waiting threads crawl on a busy 2-core machine."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="module")
+def corpus(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("umsd") / "corpus"
+    generate_corpus(root, 24, seed=0)
+    return root
+
+
+@pytest.fixture(scope="module")
+def clips(corpus: Path) -> list[MotionClip]:
+    return list(Corpus(corpus, split="train"))
+
+
+# ---- network ---------------------------------------------------------------------------------------------------
+
+
+def _padded_batch(seed: int = 0):
+    g = torch.Generator().manual_seed(seed)
+    x, c, s = (torch.randn(3, n, 263, generator=g) for n in (17, 13, 9))
+    x_mask, c_mask, s_mask = (torch.ones(t.shape[:2], dtype=torch.bool) for t in (x, c, s))
+    x_mask[1, 11:] = False  # odd lengths, padding in every part
+    c_mask[0, 5:] = False
+    s_mask[2, 3:] = False
+    return x, torch.tensor([0, 517, 999]), c, c_mask, s, s_mask, x_mask
+
+
+@pytest.mark.parametrize(
+    "variant",
+    [{}, {"use_ssm": False}, {"use_mha": False}, {"denoiser": "transformer"}],
+    ids=["msm", "no_ssm", "no_mha", "transformer"],
+)
+def test_network_shapes_masks_and_batch_independence(variant: dict) -> None:
+    torch.manual_seed(0)
+    net = UmsdNet(UmsdConfig(d_model=32, n_heads=2, ff_size=64, msm_blocks=2, d_state=4, **variant)).eval()
+    x, t, c, cm, s, sm, xm = _padded_batch()
+    with torch.no_grad():
+        y = net(x, t, c, cm, s, sm, xm)
+        assert y.shape == x.shape and torch.isfinite(y).all()
+        assert y[1, 11:].abs().max() == 0  # padded frames of x_t are zero
+        # each sample alone, without padding, gives its rows of the padded batch: padding never leaks in
+        alone = [
+            net(x[0:1], t[0:1], c[0:1, :5], None, s[0:1], None)[0],
+            net(x[1:2, :11], t[1:2], c[1:2], None, s[1:2], None)[0],
+            net(x[2:3], t[2:3], c[2:3], None, s[2:3, :3], None)[0],
+        ]
+        for i, a in enumerate(alone):
+            torch.testing.assert_close(y[i, : a.shape[0]], a, atol=1e-5, rtol=1e-4)
+        # the condition matters: another style example (or content) changes the prediction
+        assert (net(x, t, c, cm, s.flip(0), sm.flip(0), xm) - y).abs().max() > 1e-3
+        assert (net(x, t, c.flip(0), cm.flip(0), s, sm, xm) - y).abs().max() > 1e-3
+        assert (net(x, t.flip(0), c, cm, s, sm, xm) - y).abs().max() > 1e-3
+    net.train()
+    net(x, t, c, cm, s, sm, xm).square().mean().backward()
+    assert all(p.grad is not None and torch.isfinite(p.grad).all() for p in net.parameters())
+
+
+def test_ablation_flags_change_the_network() -> None:
+    base = UmsdNet(UmsdConfig(d_model=32, n_heads=2, ff_size=64, msm_blocks=2, d_state=4))
+    names = {n for n, _ in base.named_parameters()}
+    assert any("forward_ssm" in n for n in names) and any("denoiser.attn." in n for n in names)
+    no_ssm = {n for n, _ in UmsdNet(UmsdConfig(d_model=32, n_heads=2, msm_blocks=2, use_ssm=False)).named_parameters()}
+    no_mha = {n for n, _ in UmsdNet(UmsdConfig(d_model=32, n_heads=2, msm_blocks=2, use_mha=False)).named_parameters()}
+    assert not any("_ssm" in n for n in no_ssm) and not any("denoiser.attn." in n for n in no_mha)
+    transformer = UmsdNet(UmsdConfig(d_model=32, n_heads=2, msm_blocks=2, denoiser="transformer"))
+    assert len(transformer.denoiser.encoder.layers) == 3
+    with pytest.raises(ValueError, match="denoiser"):
+        UmsdConfig(denoiser="unet")
+    with pytest.raises(MotionDataError, match="no real frame"):
+        x = torch.zeros(1, 5, 263)
+        base(x, torch.zeros(1, dtype=torch.long), x, torch.zeros(1, 5, dtype=torch.bool), x, None)
+
+
+def test_pack_keeps_order_and_puts_padding_last() -> None:
+    a = torch.arange(1, 7, dtype=torch.float32).view(2, 3, 1)
+    b = torch.arange(11, 15, dtype=torch.float32).view(2, 2, 1)
+    am = torch.tensor([[True, True, False], [True, True, True]])
+    bm = torch.tensor([[True, True], [True, False]])
+    packed, mask, position = pack([a, b], [am, bm])
+    assert packed[..., 0].tolist() == [[1, 2, 11, 12], [4, 5, 6, 13]]
+    assert mask.tolist() == [[True, True, True, True], [True, True, True, True]]
+    assert position[0, :2].tolist() == [0, 1] and position[0, 3:].tolist() == [2, 3]  # a's padding moved last
+
+
+# ---- training ------------------------------------------------------------------------------------------------
+
+
+def _clip(cid: str, style: str, content: str, spec: dict | None = None) -> MotionClip:
+    rng = np.random.default_rng(len(cid) + sum(map(ord, cid)))
+    motion = rng.normal(size=(30, 263)).astype(np.float32)
+    meta = {} if spec is None else {"spec": json.dumps(spec)}
+    return MotionClip(id=cid, motion=motion, captions=[], content=content, style=style, meta=meta)
+
+
+def test_pairs_prefer_same_spec_renderings_and_other_content_style_mates() -> None:
+    spec = {"content": "walk", "seed": 3, "speed": 1.1, "style": "neutral", "intensity": 1.0}
+    clips = [
+        _clip("a", "neutral", "walk", spec),
+        _clip("b", "proud", "walk", {**spec, "style": "proud", "intensity": 0.9}),  # a re-rendered proudly
+        _clip("c", "proud", "walk", {**spec, "seed": 4, "style": "proud"}),  # another proud walk
+        _clip("d", "proud", "kick"),
+        _clip("e", "neutral", "kick"),
+    ]
+    data = prepare_data(clips, UmsdTrainConfig(**TINY))
+    assert data.same_motion[0] == [1]  # the same spec in another style wins over other proud walks
+    assert data.same_motion[2] == [0]  # no spec twin: same content label, another style
+    assert data.same_style[1] == [3]  # style mates with other content first
+    assert data.summary()["spec_pairs"] == 2
+    held = prepare_data(clips, UmsdTrainConfig(**TINY, exclude_styles=("proud",)))
+    assert set(held.styles) == {"neutral"} and held.dropped["held_out"] == 3
+    only_rec = prepare_data(clips, UmsdTrainConfig(**TINY, use_dcc=False, use_dsc=False))
+    assert set(only_rec.eligible) == {"rec"}
+    with pytest.raises(MotionDataError, match="style label"):
+        prepare_data([_clip("x", "", "walk")], UmsdTrainConfig(**TINY))
+
+
+def test_a_training_step_lowers_the_loss(clips: list[MotionClip]) -> None:
+    config = UmsdTrainConfig(**TINY, lr=2e-3)
+    data = prepare_data(clips, config)
+    torch.manual_seed(0)
+    trainer = UmsdTrainer(data, config)
+    batch = trainer.sample()
+    assert set(batch.kinds) == {"rec", "dcc", "dsc"} and len(batch.kinds) == 3 * config.batch_size
+    before = trainer.evaluate(batch)
+    assert set(before) == {"rec", "dcc", "dsc", "pos", "vel", "foot", "total"}
+    assert all(np.isfinite(v) and v > 0 for v in before.values())
+    trainer.train_step(batch)
+    after = trainer.evaluate(batch)
+    assert after["total"] < before["total"]
+
+
+def test_training_is_deterministic_and_loads(clips: list[MotionClip], tmp_path: Path) -> None:
+    config = UmsdTrainConfig(**TINY, steps=2)
+    first = train_umsd(clips, tmp_path / "a", config)
+    second = train_umsd(clips, tmp_path / "b", config)
+    other = train_umsd(clips, tmp_path / "c", config.model_copy(update={"seed": 1}))
+    blob = lambda folder: (folder / "umsd.safetensors").read_bytes()  # noqa: E731
+    assert blob(first) == blob(second) and blob(first) != blob(other)
+    info = read_artifact(first)
+    assert info.history == read_artifact(second).history and len(info.history) == 2
+    assert info.data["eligible"] and set(info.final) >= {"total", "rec", "dcc", "dsc"}
+    model = load_umsd(first)
+    assert not model.net.training and model.net.config.d_model == TINY["d_model"]
+    x = torch.from_numpy(model.normalizer.normalize(clips[0].motion[:20]))[None]
+    with torch.no_grad():
+        y = model.net(x, torch.tensor([10]), x, None, x, None)
+    assert y.shape == x.shape and torch.isfinite(y).all()
+    assert not list(tmp_path.glob(".*.tmp"))  # no temporary folder left behind
+
+
+# ---- the method --------------------------------------------------------------------------------------------------
+
+
+def test_params() -> None:
+    UmsdMethod.parse_params(UmsdMethod.smoke_params)
+    with pytest.raises(MotionDataError, match=r"config method\.params\.train"):
+        UmsdMethod.parse_params({"train": {"steps": 1, "wall_seconds": 3}})
+    with pytest.raises(MotionDataError, match=r"config method\.params\.guidance"):
+        UmsdMethod.parse_params({"guidance": 2.5})
+
+
+def test_zero_shot_transfer_of_a_held_out_style(corpus: Path, tmp_path: Path) -> None:
+    params = copy.deepcopy(UmsdMethod.smoke_params)
+    params["train"] = {**params["train"], "exclude_styles": [HELD_OUT]}
+    method = UmsdMethod(params)
+    spec = TrainingSpec(size="tiny", options={}, seed=0)
+    trained = method.train(corpus, tmp_path / "trained", spec)
+    assert method.is_trained(trained)
+    stamp = (trained / "umsd.safetensors").stat().st_mtime_ns
+    assert method.train(corpus, tmp_path / "trained", spec) == trained  # reused: same corpus and config
+    assert (trained / "umsd.safetensors").stat().st_mtime_ns == stamp
+    info = read_artifact(trained)
+    assert HELD_OUT not in info.data["styles"] and info.data["dropped"]["held_out"] > 0
+
+    everything = {c.id: c for c in Corpus(corpus)}
+    example = next(c for c in everything.values() if c.style == HELD_OUT)
+    style = StyleSpec(
+        name=HELD_OUT,
+        words={"adjective": "old", "phrases": ["like an old person"]},
+        examples=[{"source": example.id, "description": "a person walks like an old person"}],
+    )
+    method.check_style(style, trained)  # any style is allowed
+    artifact = method.prepare(style, [example], trained, [], tmp_path / "style")
+    record = json.loads((artifact / ARTIFACT_JSON).read_text(encoding="utf-8"))
+    longest = params["train"]["max_frames"]  # a longer example is cut to the middle of the training crop
+    assert record["examples"] == [example.id] and record["example_frames"] == [min(example.n_frames, longest)]
+
+    model = method.load(artifact, trained)
+    content = [c for c in everything.values() if c.style == "neutral"][:2]
+    broken = MotionClip(id="broken", motion=np.full((30, 263), np.nan, np.float32), captions=[])
+    outputs = model.transfer([content[0], broken, content[1]], seed=3)
+    assert isinstance(outputs[1], Reject) and outputs[1].id == "broken"
+    kept = trajectory_channels("horizontal")
+    for out, clip in zip([outputs[0], outputs[2]], content):
+        assert isinstance(out, TransferOutput) and out.source_id == clip.id and out.style == HELD_OUT
+        assert out.motion.shape == clip.motion.shape and out.motion.dtype == np.float32
+        assert np.isfinite(out.motion).all()
+        np.testing.assert_array_equal(out.motion[:, kept], clip.motion[:, kept])  # the root path is the content's
+        assert not np.allclose(out.motion, clip.motion, atol=1e-3)  # but the body moves differently
+        assert out.captions and any("old" in c.text for c in out.captions)
+    # a clip's output depends on the seed and its id, not on its batch mates
+    alone = model.transfer([content[1]], seed=3)[0]
+    np.testing.assert_allclose(alone.motion, outputs[2].motion, atol=1e-4)
+    assert not np.allclose(model.transfer([content[1]], seed=4)[0].motion, alone.motion)
+
+    (trained / "umsd.json").write_text((trained / "umsd.json").read_text() + " ", encoding="utf-8")
+    with pytest.raises(MotionDataError, match="prepared for UMSD network"):
+        method.load(artifact, trained)
