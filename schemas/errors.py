@@ -16,6 +16,10 @@ class MotionDataError(ValueError):
         self.reason = reason
         super().__init__(f"{self.source}: {reason}")
 
+    def __reduce__(self) -> tuple[type[MotionDataError], tuple[str, str]]:
+        """Pickle as (source, reason): Ray carries an error raised in a task back to the driver this way."""
+        return (type(self), (self.source, self.reason))
+
 
 def first_error(err: ValidationError, whole: str) -> tuple[str, str]:
     """(dotted field path, message) of a pydantic error's first problem; ``whole`` when it is about the whole."""

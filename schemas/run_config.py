@@ -17,6 +17,7 @@ from typing import Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.styles import StyleSpec
 
 RUN_CONFIG_VERSION = 1
@@ -175,11 +176,22 @@ def apply_overrides(data: dict[str, Any], overrides: list[str]) -> dict[str, Any
 
 
 def read_config_file(path: Path) -> dict[str, Any]:
-    """The raw mapping of a .yaml/.yml/.json config file."""
-    text = path.read_text(encoding="utf-8")
-    data = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
+    """The raw mapping of a .yaml/.yml/.json config file; a syntax error names file:line:column."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        raise MotionDataError(str(path), f"cannot read the config ({err.__class__.__name__}: {err})") from None
+    try:
+        data = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
+    except json.JSONDecodeError as err:
+        raise MotionDataError(f"{path}:{err.lineno}:{err.colno}", f"not valid JSON ({err.msg})") from None
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark is not None else str(path)
+        problem = getattr(err, "problem", None) or str(err).splitlines()[0]
+        raise MotionDataError(where, f"not valid YAML ({problem})") from None
     if not isinstance(data, dict):
-        raise ValueError(f"{path}: a run config must be a mapping at the top level")
+        raise MotionDataError(str(path), "a run config must be a mapping at the top level")
     return data
 
 

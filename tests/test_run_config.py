@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
+from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.run_config import RunConfig, apply_overrides, load_run_config, parse_override
 
 STYLE = {
@@ -91,3 +92,18 @@ def test_every_shipped_config_loads_and_its_method_params_validate() -> None:
         params = validate_method_params(config.method.name, config.method.params)
         if path.name == "onthefly-lora-synthetic.yaml":  # the recipe bench/RESULTS.md measured
             assert params["lora_rank"] == 4 and "poseFinal" in params["lora_targets"]
+
+
+def test_a_yaml_syntax_error_names_file_line_and_column(tmp_path: Path) -> None:
+    path = tmp_path / "broken.yaml"
+    path.write_text("corpus:\n  path: runs/x\nstyles: [proud\n")
+    with pytest.raises(MotionDataError, match=r"broken\.yaml:\d+:\d+: not valid YAML"):
+        load_run_config(path)
+
+
+def test_motion_data_error_pickles_with_its_source_and_reason() -> None:
+    """Ray carries a task's exception back by pickling it; the one-line message must survive."""
+    import pickle
+
+    err = pickle.loads(pickle.dumps(MotionDataError("clip 000001", "NaN at frame 3")))
+    assert (err.source, err.reason, str(err)) == ("clip 000001", "NaN at frame 3", "clip 000001: NaN at frame 3")
