@@ -37,11 +37,13 @@ import torch
 
 from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.corpus.style_examples import load_style_examples
+from motionaug.augment.eval.evaluation import Classifiers, load_classifiers
 from motionaug.augment.eval.inputs import features_to_joints, pad_batch
 from motionaug.augment.eval.metrics import mpjpe, recognition_accuracy
 from motionaug.augment.methods.base import TransferOutput
 from motionaug.augment.methods.onthefly import OnTheFlyMethod, OnTheFlyModel, longest_frames, parse_params, retimed
 from motionaug.augment.training.base_models import BaseModels, BaseModelsInfo, config_dict
+from motionaug.augment.training.evaluators import evaluators_folder
 from motionaug.models.mdm import MDM, MDMConfig
 from motionaug.models.motion_encoder import MotionEncoder, MotionEncoderConfig
 from motionaug.schemas.skeleton import T2M
@@ -175,19 +177,21 @@ def pose_errors(
     return means
 
 
-def accuracies(base: BaseModels, motions: Sequence[np.ndarray], contents: Sequence[str], style: str) -> dict[str, Any]:
+def accuracies(
+    judges: Classifiers | None, motions: Sequence[np.ndarray], contents: Sequence[str], style: str
+) -> dict[str, Any]:
     """SRA (style classifier says ``style``), CRA (content classifier says the clip's content), what style it said
     and, for the clips whose content it missed, ``"true -> said"`` counts."""
-    if base.content_classifier is None or base.style_classifier is None:
+    if judges is None or judges.content is None or judges.style is None:
         return {"sra": None, "cra": None, "styles_predicted": None, "contents_missed": None}
     joints, mask = pad_batch([_joints(m) for m in motions])
     with torch.no_grad():
-        style_logits = base.style_classifier(joints, mask)
-        content_logits = base.content_classifier(joints, mask)
-    s_idx = [base.info.style_labels.index(style)] * len(motions)
-    c_idx = [base.info.content_labels.index(c) for c in contents]
-    said = Counter(base.info.style_labels[i] for i in style_logits.argmax(-1).tolist())
-    content_said = [base.info.content_labels[i] for i in content_logits.argmax(-1).tolist()]
+        style_logits = judges.style(joints, mask)
+        content_logits = judges.content(joints, mask)
+    s_idx = [judges.style_labels.index(style)] * len(motions)
+    c_idx = [judges.content_labels.index(c) for c in contents]
+    said = Counter(judges.style_labels[i] for i in style_logits.argmax(-1).tolist())
+    content_said = [judges.content_labels[i] for i in content_logits.argmax(-1).tolist()]
     missed = Counter(f"{c} -> {p}" for c, p in zip(contents, content_said) if c != p)
     return {
         "sra": recognition_accuracy(style_logits, s_idx),
@@ -215,6 +219,7 @@ def run_variant(
     prepare_s = time.perf_counter() - start
     info = json.loads((artifact / "artifact.json").read_text())
     model: OnTheFlyModel = method.load(artifact, base_dir)
+    judges = load_classifiers(base_dir) if evaluators_folder(base_dir) else None
     start = time.perf_counter()
     outs = model.transfer(content, seed=0)
     transfer_s = time.perf_counter() - start
@@ -248,11 +253,11 @@ def run_variant(
         "transferred": len(done),
         "rejected": len(outs) - len(done),
         "transfer_clips_per_s": len(done) / transfer_s,
-        **accuracies(model.base, motions, contents, style),
-        "input_accuracy": accuracies(model.base, [c.motion for c in content], contents, style),
+        **accuracies(judges, motions, contents, style),
+        "input_accuracy": accuracies(judges, [c.motion for c in content], contents, style),
         # what the classifiers make of the inputs at the variant's tempo (before any transfer) and of the ground truth
-        "retimed_input_accuracy": accuracies(model.base, inputs_retimed, contents, style),
-        "ground_truth_accuracy": accuracies(model.base, targets, contents, style),
+        "retimed_input_accuracy": accuracies(judges, inputs_retimed, contents, style),
+        "ground_truth_accuracy": accuracies(judges, targets, contents, style),
         "mpjpe": pose_errors(motions, [c.motion for c in content], targets),
         "mpjpe_timing_kept": pose_errors(
             motions, [c.motion for c in content], [ground_truth(c, style, True) for c in content]
@@ -319,7 +324,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     corpus_dir, corpus = load_corpus(args.work, args.n_clips, args.seed)
     caps = {"batch_size": args.pretrain_batch}
     if args.base_dir is not None:
-        base_dir, pretrained = args.base_dir, BaseModels.load(args.base_dir).style_classifier is not None
+        base_dir, pretrained = args.base_dir, evaluators_folder(args.base_dir) is not None
     else:
         base_dir, pretrained = get_base(args.work, corpus_dir, args.size, args.random_base, caps)
     if args.pretrain_only:

@@ -21,6 +21,7 @@ from pathlib import Path
 import torch
 
 from motionaug.augment.diffusion import bind_model, ddim_sample
+from motionaug.augment.eval.evaluation import Classifiers, load_classifiers
 from motionaug.augment.eval.metrics import retrieval_r_at_k
 from motionaug.augment.training.base_models import BaseModels
 from motionaug.augment.training.data import MotionSet, build_motion_set, iter_batches, read_clips, split_ids
@@ -71,14 +72,14 @@ def one_row_per_caption(data: MotionSet) -> MotionSet:
     )
 
 
-def accuracies(models: BaseModels, data: MotionSet) -> dict[str, float]:
-    """Content and style recognition of ``data`` by the base models' classifiers (labelled clips only)."""
+def accuracies(models: BaseModels, judges: Classifiers, data: MotionSet) -> dict[str, float]:
+    """Content and style recognition of ``data`` by the evaluators (labelled clips only)."""
     skeleton = skeleton_for(models.normalizer.dim)
     joints, mask = joints_of(data, models.normalizer, skeleton, models.info.max_frames)
     out = {}
     for name, model, labels in (
-        ("content", models.content_classifier, data.content),
-        ("style", models.style_classifier, data.style),
+        ("content", judges.content, data.content),
+        ("style", judges.style, data.style),
     ):
         keep = labels >= 0
         if model is not None and bool(keep.any()):
@@ -113,6 +114,7 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     models = BaseModels.load(args.base)
+    judges = load_classifiers(args.base)
     ids = split_ids(args.corpus, "test")[: args.limit]
     data = build_motion_set(
         read_clips(args.corpus, ids),
@@ -123,7 +125,7 @@ def main() -> None:
     )
     report: dict[str, object] = {
         "clips": len(data),
-        "real": accuracies(models, data),
+        "real": accuracies(models, judges, data),
         "encoder_r1": encoder_r1(models, data),
     }
     if args.all_captions:
@@ -133,7 +135,7 @@ def main() -> None:
         start = time.perf_counter()
         generated = generate(models, data, scale or None, args.steps, args.batch, args.seed)
         report[f"guidance_{scale:g}"] = {
-            **accuracies(models, generated),
+            **accuracies(models, judges, generated),
             "seconds": round(time.perf_counter() - start, 1),
         }
     report["load"] = os.getloadavg()

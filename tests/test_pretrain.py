@@ -14,6 +14,7 @@ from safetensors.torch import load_file
 
 from motionaug.augment.diffusion import NoiseSchedule
 from motionaug.augment.diffusion.gaussian import sample_timesteps
+from motionaug.augment.eval.evaluation import load_classifiers
 from motionaug.augment.motion.features import Normalizer, feature_slices
 from motionaug.augment.synth import generate_corpus
 from motionaug.augment.training.base_models import BaseModels, BaseModelsInfo
@@ -41,7 +42,7 @@ from motionaug.models.text_encoder import make_text_encoder
 from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.skeleton import T2M
 
-MODULES = ("prior", "motion_encoder", "content_classifier", "style_classifier")
+MODULES = ("prior", "motion_encoder", "evaluators/content_classifier", "evaluators/style_classifier")
 
 
 class Interrupt(Exception):
@@ -264,9 +265,11 @@ def test_base_models_round_trip_gives_identical_outputs(baseline: tuple[Path, Ba
         loaded.motion_encoder.embed.poseEmbedding.weight, loaded.prior.input_process.poseEmbedding.weight
     )
     joints = torch.randn(2, 30, 22, 3)
-    assert loaded.content_classifier is not None and loaded.style_classifier is not None
-    assert torch.equal(loaded.content_classifier(joints, mask), again.content_classifier(joints, mask))
-    assert len(loaded.info.content_labels) == loaded.content_classifier.config.n_classes
+    judges, judges_again = load_classifiers(out), load_classifiers(out)  # the evaluators: an artefact of their own
+    assert judges.source == str(out / "evaluators") and judges.content is not None and judges.style is not None
+    assert torch.equal(judges.content(joints, mask), judges_again.content(joints, mask))
+    assert len(judges.content_labels) == judges.content.config.n_classes
+    assert loaded.content_classifier is None  # the bundle a method loads carries no evaluator
 
 
 def test_motion_encoder_state_dict_keys_match_standalone_and_shared() -> None:

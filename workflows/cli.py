@@ -185,14 +185,22 @@ def pretrain(
     overrides: Annotated[
         list[str] | None, typer.Option("--set", help="Preset override key=value, e.g. prior_steps=2000 (repeatable).")
     ] = None,
+    evaluators_only: Annotated[
+        bool,
+        typer.Option(help="Only the evaluators (content/style classifiers), into OUT: for methods without a prior."),
+    ] = False,
 ) -> None:
-    """Train the base models: the T2M diffusion prior, the motion encoder and the evaluators."""
-    from motionaug.augment.training.pretrain import PretrainConfig, ensure_base_models
+    """Train the base models: the T2M diffusion prior and the motion encoder, and the evaluators (OUT/evaluators)."""
+    from motionaug.augment.training.pretrain import PretrainConfig, ensure_base_models, fit_evaluators
     from motionaug.schemas.run_config import apply_overrides
 
     with usage_errors():
         options = apply_overrides({}, overrides or [])
     config = run_safely(lambda: PretrainConfig.for_size(size, seed=seed, **options))
+    if evaluators_only:
+        metrics = run_safely(lambda: fit_evaluators(corpus, out, config))
+        console.print(_facts(f"evaluators in {out}", [(k, f"{v:.4f}") for k, v in sorted(metrics.items())]))
+        return
     columns = (
         TextColumn("{task.description:>15}"),
         BarColumn(),

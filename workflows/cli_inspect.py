@@ -63,7 +63,8 @@ def evaluate_command(
         Path | None, typer.Option(help="Corpus of real labelled clips for FMD (default: the run's corpus).")
     ] = None,
     base_models: Annotated[
-        Path | None, typer.Option(help="Base models with the evaluation classifiers (default: the run's).")
+        Path | None,
+        typer.Option(help="Evaluators: an evaluators folder or base models holding one (default: the run's)."),
     ] = None,
 ) -> None:
     """Score every stylized clip; write report.md, report.html and scores.parquet into the run folder."""

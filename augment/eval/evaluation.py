@@ -53,9 +53,11 @@ from motionaug.augment.training.base_models import (
     BASE_JSON,
     CONTENT_CLASSIFIER,
     STYLE_CLASSIFIER,
+    BaseModelsInfo,
     load_module,
     read_base_info,
 )
+from motionaug.augment.training.evaluators import EvaluatorsInfo, evaluators_folder, read_evaluators_info
 from motionaug.models.evaluators import ClassifierConfig, MotionClassifier
 from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.shards import Manifest
@@ -121,6 +123,7 @@ class Classifiers:
     content_labels: list[str]
     style_labels: list[str]
     source: str
+    corpus_fingerprint: str = ""  # the corpus whose train split they were fit on
 
 
 @dataclass
@@ -170,10 +173,12 @@ class Evaluation:
 # ---- loading -------------------------------------------------------------------------------------
 
 
-def load_classifiers(base_dir: str | Path) -> Classifiers:
-    """Only the evaluators of a base-models folder (the prior and encoders are not needed to evaluate)."""
-    folder = Path(base_dir)
-    info = read_base_info(folder)
+def load_classifiers(path: str | Path) -> Classifiers:
+    """The evaluators at ``path``: an evaluators folder, a base-models folder's ``evaluators/``, or (older base-models
+    folders) the classifiers listed in its ``base.json``."""
+    folder = evaluators_folder(path)
+    info: EvaluatorsInfo | BaseModelsInfo = read_evaluators_info(folder) if folder else read_base_info(Path(path))
+    folder = folder or Path(path)
     loaded: dict[str, MotionClassifier | None] = {}
     for name in (CONTENT_CLASSIFIER, STYLE_CLASSIFIER):
         config = getattr(info, name)
@@ -189,6 +194,7 @@ def load_classifiers(base_dir: str | Path) -> Classifiers:
         list(info.content_labels),
         list(info.style_labels),
         str(folder),
+        info.corpus_fingerprint,
     )
 
 
@@ -204,7 +210,7 @@ def _base_models_dir(run_dir: Path, manifest: Manifest, config: dict, given: Pat
         return Path(given)
     configured = (config.get("base_models") or {}).get("path")
     for candidate in (manifest.base_models, configured, run_dir / "base_models"):
-        if candidate and (Path(candidate) / BASE_JSON).is_file():
+        if candidate and (evaluators_folder(candidate) or (Path(candidate) / BASE_JSON).is_file()):
             return Path(candidate)
     return None
 
@@ -361,7 +367,7 @@ def evaluate_run(
     corpus = Path(config["corpus"]["path"])
     reference = Path(reference) if reference is not None else corpus
     classifiers = _classifiers(run_dir, manifest, config, Path(base_models) if base_models else None, notes)
-    evaluators_saw_train = classifiers is not None and _evaluators_trained_on(classifiers.source, corpus)
+    evaluators_saw_train = classifiers is not None and _evaluators_trained_on(classifiers, corpus)
     source_ids = {r["source_id"] for r in iter_shard_rows(run_dir, columns=["source_id"])}
     if not source_ids:
         raise MotionDataError(str(run_dir), "run has no stylized clips to evaluate")
@@ -420,13 +426,12 @@ def _throughput(manifest: Manifest) -> float | None:
     return manifest.rows / transfer.seconds if transfer is not None and transfer.seconds > 0 else None
 
 
-def _evaluators_trained_on(base_dir: str, corpus: Path) -> bool:
-    """Whether the evaluators were fit on this corpus (their train split), from the corpus fingerprint."""
+def _evaluators_trained_on(classifiers: Classifiers, corpus: Path) -> bool:
+    """Whether the evaluators were fit on this corpus (its train split), from the corpus fingerprint."""
     from motionaug.augment.training.pretrain import corpus_fingerprint
 
-    recorded = read_base_info(Path(base_dir)).corpus_fingerprint
     try:
-        return bool(recorded) and Path(corpus).is_dir() and corpus_fingerprint(corpus) == recorded
+        return bool(classifiers.corpus_fingerprint) and corpus_fingerprint(corpus) == classifiers.corpus_fingerprint
     except MotionDataError:
         return False
 

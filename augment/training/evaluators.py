@@ -1,4 +1,10 @@
-"""Training and inference helpers for the evaluation classifiers (content, style).
+"""The evaluation classifiers (content, style): training and inference helpers, and their artefact.
+
+The evaluators are an artefact of their own and score every method: ``motionaug pretrain`` writes them to
+``<base models>/evaluators/`` (``--evaluators-only``: only them, for methods that need no prior), ``motionaug
+evaluate`` and the benchmarks read them from there. No method trains against them (a method's own classifier,
+such as Style-ERD's perceptual-loss network, is a different network). Layout: ``evaluators.json``
+(``EvaluatorsInfo``) beside ``content_classifier.safetensors`` and ``style_classifier.safetensors``.
 
 Data is either one tuple of tensors ``(joints (N, T, J, 3), mask (N, T), labels (N,))``, shuffled into
 mini-batches here, or any iterable of such batches (e.g. a ``DataLoader``) re-iterated every epoch.
@@ -7,11 +13,16 @@ mini-batches here, or any iterable of such batches (e.g. a ``DataLoader``) re-it
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import Any
 
 import torch
 import torch.nn.functional as F
+from pydantic import BaseModel, ConfigDict, Field
 
 from motionaug.augment.eval.metrics import recognition_accuracy
+from motionaug.augment.io import atomic_write_text, read_json_model
+from motionaug.augment.training.base_models import CONTENT_CLASSIFIER, STYLE_CLASSIFIER, config_dict, save_module
 from motionaug.models.evaluators import MotionClassifier
 from motionaug.schemas.errors import MotionDataError
 
@@ -119,3 +130,64 @@ def classifier_accuracy(
 ) -> float:
     """CRA or SRA of ``model`` on labelled joints."""
     return recognition_accuracy(classifier_logits(model, joints, mask), labels)
+
+
+# ---- the artefact ------------------------------------------------------------------------------------------
+
+EVALUATORS_DIR = "evaluators"
+EVALUATORS_JSON = "evaluators.json"
+
+
+class EvaluatorsInfo(BaseModel):
+    """Everything needed to rebuild the classifiers, and what they were fit and measured on."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    version: int = 1
+    content_classifier: dict[str, Any] | None = None
+    style_classifier: dict[str, Any] | None = None
+    content_labels: list[str] = Field(default_factory=list)
+    style_labels: list[str] = Field(default_factory=list)
+    corpus_fingerprint: str = Field("", description="The corpus whose train split they were fit on.")
+    metrics: dict[str, float] = Field(default_factory=dict, description="Accuracy on the held-out split.")
+    metrics_split: str = "test"
+
+
+def evaluators_folder(path: str | Path) -> Path | None:
+    """The evaluators at ``path``: the folder itself, or its ``evaluators/`` (a base-models folder); else None."""
+    path = Path(path)
+    for candidate in (path, path / EVALUATORS_DIR):
+        if (candidate / EVALUATORS_JSON).is_file():
+            return candidate
+    return None
+
+
+def save_evaluators(
+    folder: str | Path,
+    models: dict[str, MotionClassifier | None],
+    labels: dict[str, list[str]],
+    corpus_fingerprint: str,
+    metrics: dict[str, float],
+) -> Path:
+    """Weights first, ``evaluators.json`` last (it marks a complete folder)."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, model in models.items():
+        if model is not None:
+            save_module(model, folder / f"{name}.safetensors")
+    info = EvaluatorsInfo(
+        content_classifier=None
+        if models[CONTENT_CLASSIFIER] is None
+        else config_dict(models[CONTENT_CLASSIFIER].config),
+        style_classifier=None if models[STYLE_CLASSIFIER] is None else config_dict(models[STYLE_CLASSIFIER].config),
+        content_labels=labels["content"] if models[CONTENT_CLASSIFIER] is not None else [],
+        style_labels=labels["style"] if models[STYLE_CLASSIFIER] is not None else [],
+        corpus_fingerprint=corpus_fingerprint,
+        metrics={k: v for k, v in sorted(metrics.items()) if k.endswith("classifier_accuracy")},
+    )
+    atomic_write_text(folder / EVALUATORS_JSON, info.model_dump_json(indent=2))
+    return folder
+
+
+def read_evaluators_info(folder: str | Path) -> EvaluatorsInfo:
+    return read_json_model(Path(folder) / EVALUATORS_JSON, EvaluatorsInfo, "an evaluators folder (motionaug pretrain)")

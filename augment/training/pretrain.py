@@ -54,7 +54,13 @@ from motionaug.augment.training.data import (
     sample_batch,
     split_ids,
 )
-from motionaug.augment.training.evaluators import classifier_accuracy, fit_classifier
+from motionaug.augment.training.evaluators import (
+    EVALUATORS_DIR,
+    classifier_accuracy,
+    evaluators_folder,
+    fit_classifier,
+    save_evaluators,
+)
 from motionaug.augment.training.geometric_losses import geometric_losses
 from motionaug.models.evaluators import MotionClassifier, make_classifier
 from motionaug.models.mdm import MDM, MDMConfig
@@ -583,24 +589,14 @@ def pretrain(
     prior = train_prior(run)
     motion_encoder = train_motion_encoder(run, prior)
     classifiers = train_evaluators(run)
-    info = _info(run, prior, motion_encoder, classifiers, fingerprint)
-    BaseModels(
-        info=info,
-        prior=prior,
-        motion_encoder=motion_encoder,
-        normalizer=normalizer,
-        content_classifier=classifiers["content_classifier"],
-        style_classifier=classifiers["style_classifier"],
-    ).save(out)
+    labels = {"content": run.train.content_labels, "style": run.train.style_labels}
+    save_evaluators(out / EVALUATORS_DIR, classifiers, labels, fingerprint, run.metrics)
+    info = _info(run, prior, motion_encoder, fingerprint)
+    BaseModels(info=info, prior=prior, motion_encoder=motion_encoder, normalizer=normalizer).save(out)
     return info
 
 
-def _info(
-    run: Run, prior: MDM, encoder: MotionEncoder, classifiers: dict[str, MotionClassifier | None], fingerprint: str
-) -> BaseModelsInfo:
-    def cfg(model: MotionClassifier | None) -> dict[str, Any] | None:
-        return None if model is None else config_dict(model.config)
-
+def _info(run: Run, prior: MDM, encoder: MotionEncoder, fingerprint: str) -> BaseModelsInfo:
     return BaseModelsInfo(
         size=run.config.size,
         text_encoder=run.config.text_encoder,
@@ -608,10 +604,6 @@ def _info(
         max_frames=run.config.max_frames,
         prior=config_dict(prior.config),
         motion_encoder=config_dict(encoder.config),
-        content_classifier=cfg(classifiers["content_classifier"]),
-        style_classifier=cfg(classifiers["style_classifier"]),
-        content_labels=run.train.content_labels if classifiers["content_classifier"] else [],
-        style_labels=run.train.style_labels if classifiers["style_classifier"] else [],
         corpus_fingerprint=fingerprint,
         config_hash=run.config.config_hash(),
         pretrain_config=run.config.model_dump(),
@@ -622,7 +614,8 @@ def _info(
 def fit_evaluators(
     corpus_dir: str | Path, work_dir: str | Path, config: PretrainConfig | None = None
 ) -> dict[str, float]:
-    """Stage c alone on any labelled corpus (no prior, no text encoder): held-out content/style accuracy.
+    """Stage c alone on any labelled corpus (no prior, no text encoder), saved as an evaluators folder at
+    ``work_dir``; returns the held-out content/style accuracy.
 
     Without train/test split files the split is a stable hash of the ids (``training_data.split_ids``).
     """
@@ -631,9 +624,11 @@ def fit_evaluators(
     corpus, work = Path(corpus_dir), Path(work_dir)
     work.mkdir(parents=True, exist_ok=True)
     normalizer, train, test = _load_data(corpus, None, require_stats=False)
-    hashed = run_hash(config, corpus_fingerprint(corpus))
-    run = Run(config, work, normalizer, skeleton_for(normalizer.dim), train, test, hashed, None)
-    train_evaluators(run)
+    fingerprint = corpus_fingerprint(corpus)
+    run = Run(config, work, normalizer, skeleton_for(normalizer.dim), train, test, run_hash(config, fingerprint), None)
+    classifiers = train_evaluators(run)
+    labels = {"content": train.content_labels, "style": train.style_labels}
+    save_evaluators(work, classifiers, labels, fingerprint, run.metrics)
     return {**run.metrics, "train_clips": float(len(train)), "test_clips": float(len(test))}
 
 
@@ -643,8 +638,8 @@ def _complete(out: Path, fingerprint: str, config_hash: str) -> bool:
         info = BaseModelsInfo.model_validate_json((out / BASE_JSON).read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return False
-    names = ["prior", "motion_encoder"] + [n for n in ("content_classifier", "style_classifier") if getattr(info, n)]
-    files_ok = all((out / f"{n}.safetensors").is_file() for n in names) and (out / "Mean.npy").is_file()
+    files_ok = all((out / f"{n}.safetensors").is_file() for n in ("prior", "motion_encoder"))
+    files_ok = files_ok and (out / "Mean.npy").is_file() and evaluators_folder(out) is not None
     return files_ok and info.corpus_fingerprint == fingerprint and info.config_hash == config_hash
 
 
