@@ -36,8 +36,8 @@ from torch import Tensor, nn
 __all__ = ["BiMamba", "MambaLayer", "SelectiveSSM", "causal_conv1d", "selective_scan", "selective_scan_reference"]
 
 # Elements of one chunk's (chunk, B, N, channel group) work buffer: the backward keeps three per worker, which should
-# stay in the shared L3 cache (a few MiB each) rather than go out to memory between the steps of a chunk.
-_CHUNK_ELEMENTS = 1 << 20
+# stay in the shared L3 cache (2 MiB each in float32) rather than go out to memory between the steps of a chunk.
+_CHUNK_ELEMENTS = 1 << 19
 # Fewest state elements (B * N * group channels) worth a worker thread of their own.
 _MIN_GROUP_ELEMENTS = 1 << 15
 _LOG2E = math.log2(math.e)
@@ -145,7 +145,7 @@ def selective_scan(
     unchanged (in either direction) and they contribute nothing; their outputs are 0. For trailing padding, the
     valid part equals the scan of the unpadded sequence in both directions.
     reverse: scan from the last step to the first (the backward SSM Phi- of UMSD Eq. 7).
-    chunk_size: steps per chunk (default: sized so that a chunk's work buffer is about 4 MiB in float32).
+    chunk_size: steps per chunk (default: sized so that a chunk's work buffer is about 2 MiB in float32).
     workers: threads, each scanning a slice of the channels (default: ``torch.get_num_threads()``, fewer for a
     small state).
     """
@@ -161,8 +161,8 @@ def selective_scan(
     if chunk_size is None:
         group = -(-channels // workers)
         chunk_size = max(1, min(64, _CHUNK_ELEMENTS // max(1, batch * group * A.shape[1])))
-    inputs = (t.to(compute) for t in (delta, delta * u, A, B, C))
-    y = _ChunkedScan.apply(*inputs, chunk_size, reverse, workers).to(u.dtype)
+    delta_c, u_c, A_c, B_c, C_c = (t.to(compute) for t in (delta, u, A, B, C))
+    y = _ChunkedScan.apply(delta_c, delta_c * u_c, A_c, B_c, C_c, chunk_size, reverse, workers).to(u.dtype)
     return _finish(y, u, D, z, keep)
 
 
@@ -213,9 +213,10 @@ class _ChunkedScan(torch.autograd.Function):
 
         results = _ScanWorkers.map(run, groups)
         ctx.chunk, ctx.reverse, ctx.groups = chunk, reverse, groups
+        ctx.channels_inner = tuple(t.stride(1) == 1 for t in (delta, x, B, C))
         ctx.save_for_backward(BT, CT, *(t for _, saved in results for t in saved))
-        y = results[0][0] if len(results) == 1 else torch.cat([y for y, _ in results], dim=2)
-        return _batch_major(y, reverse)
+        y = _cat([y for y, _ in results], dim=2)
+        return _batch_major(y, reverse, channels_inner=x.stride(1) == 1)
 
     @staticmethod
     def backward(ctx, grad_y: Tensor) -> tuple[Tensor | None, ...]:
@@ -228,14 +229,15 @@ class _ChunkedScan(torch.autograd.Function):
             return _scan_backward(dT, xT, At, BT, CT, starts, gT[:, :, groups[i]].contiguous(), chunk)
 
         parts = _ScanWorkers.map(run, range(len(groups)))
-        d_delta, d_x, d_At = (torch.cat([p[i] for p in parts], dim=-1) for i in range(3))
+        d_delta, d_x, d_At = (_cat([p[i] for p in parts], dim=-1) for i in range(3))
         d_B, d_C = (functools.reduce(torch.add, [p[i] for p in parts]) for i in (3, 4))  # sums over all channels
+        layouts = dict(zip(("delta", "x", "B", "C"), ctx.channels_inner, strict=True))
         return (
-            _batch_major(d_delta, reverse),
-            _batch_major(d_x, reverse),
+            _batch_major(d_delta, reverse, layouts["delta"]),
+            _batch_major(d_x, reverse, layouts["x"]),
             d_At.t(),
-            _batch_major(d_B, reverse),
-            _batch_major(d_C, reverse),
+            _batch_major(d_B, reverse, layouts["B"]),
+            _batch_major(d_C, reverse, layouts["C"]),
             None,
             None,
             None,
@@ -255,7 +257,8 @@ def _scan_forward(dT: Tensor, xT: Tensor, At: Tensor, BT: Tensor, CT: Tensor, ch
     n_state = At.shape[0]
     At2 = At * _LOG2E
     n_chunks = -(-length // chunk)
-    starts = dT.new_zeros(n_chunks, batch, n_state, channels)
+    starts = dT.new_empty(n_chunks, batch, n_state, channels)
+    starts[0].zero_()
     y = dT.new_empty(length, batch, channels)
     a = dT.new_empty(chunk, batch, n_state, channels)
     h = dT.new_empty(chunk + 1, batch, n_state, channels)  # h[0] = the state entering the chunk
@@ -285,25 +288,25 @@ def _scan_backward(
     length, batch, channels = dT.shape
     n_chunks, n_state = starts.shape[0], At.shape[0]
     At2 = At * _LOG2E
-    a = gT.new_empty(chunk, batch, n_state, channels)
+    # Two (a, dh) buffers, used by alternate chunks: the adjoint of a chunk's last step reads the first step of the
+    # chunk after it (processed just before), which is still in the other buffer.
+    a_bufs = gT.new_empty(2, chunk, batch, n_state, channels)
+    dh_bufs = gT.new_empty(2, chunk, batch, n_state, channels)
     h = gT.new_empty(chunk + 1, batch, n_state, channels)
-    dh = gT.new_empty(chunk, batch, n_state, channels)
-    a_after, dh_after = gT.new_empty(batch, n_state, channels), gT.new_empty(batch, n_state, channels)
     d_delta, d_x = gT.new_empty(length, batch, channels), gT.new_empty(length, batch, channels)
     d_B, d_C = gT.new_empty(length, batch, n_state), gT.new_empty(length, batch, n_state)
     d_At = gT.new_zeros(n_state, channels)
     for c in range(n_chunks - 1, -1, -1):
         t0, t1 = c * chunk, min(length, (c + 1) * chunk)
         k, rows = t1 - t0, (t1 - t0) * batch
+        a, a_after, dh_after = a_bufs[c % 2], a_bufs[(c + 1) % 2][0], dh_bufs[(c + 1) % 2][0]
         states = _chunk_states(dT[t0:t1], xT[t0:t1], At2, BT[t0:t1], starts[c], a[:k], h[: k + 1])
         # Adjoint recurrence, backwards through the chunk; the step after it is the next chunk's first.
-        adj = torch.mul(gT[t0:t1, :, None, :], CT[t0:t1, :, :, None], out=dh[:k])
+        adj = torch.mul(gT[t0:t1, :, None, :], CT[t0:t1, :, :, None], out=dh_bufs[c % 2][:k])
         if c + 1 < n_chunks:
             adj[k - 1].addcmul_(a_after, dh_after)
         for j in range(k - 2, -1, -1):
             adj[j].addcmul_(a[j + 1], adj[j + 1])
-        a_after.copy_(a[0])
-        dh_after.copy_(adj[0])
         adj_rows, state_rows = adj.view(rows, n_state, channels), states.view(rows, n_state, channels)
         # Sums over D as (rows, 1, D) @ (rows, D, N): far faster on CPU than (rows, N, D) @ (rows, D, 1).
         torch.bmm(gT[t0:t1].view(rows, 1, channels), state_rows.transpose(1, 2), out=d_C[t0:t1].view(rows, 1, n_state))
@@ -380,9 +383,16 @@ def _time_major(t: Tensor, reverse: bool) -> Tensor:
     return t.contiguous()
 
 
-def _batch_major(t: Tensor, reverse: bool) -> Tensor:
-    """Inverse of ``_time_major``."""
-    return (t.flip(0) if reverse else t).permute(1, 2, 0)
+def _batch_major(t: Tensor, reverse: bool, channels_inner: bool) -> Tensor:
+    """Inverse of ``_time_major``: (L, B, X) -> (B, X, L), in the memory layout of the matching input, so the
+    elementwise ops around the scan see one layout: a view when X is innermost there (as for activations from a
+    Linear), else a (B, X, L)-contiguous copy."""
+    t = (t.flip(0) if reverse else t).permute(1, 2, 0)
+    return t if channels_inner else t.contiguous()
+
+
+def _cat(parts: list[Tensor], dim: int) -> Tensor:
+    return parts[0] if len(parts) == 1 else torch.cat(parts, dim=dim)
 
 
 def _chunk_states(delta: Tensor, x: Tensor, At2: Tensor, B: Tensor, start: Tensor, a: Tensor, h: Tensor) -> Tensor:
@@ -455,15 +465,21 @@ def _at_least_float32(p: Tensor) -> Tensor:
 
 
 def causal_conv1d(conv: nn.Conv1d, x: Tensor, anticausal: bool = False) -> Tensor:
-    """Causal depthwise conv over (B, L, C) (mamba's conv1d); ``anticausal`` mirrors it in time for a reverse scan,
-    so a reverse layer equals the forward layer run on the time-flipped sequence."""
-    width = conv.kernel_size[0]
-    x = x.transpose(1, 2)
-    if anticausal:
-        x = F.conv1d(F.pad(x, (0, width - 1)), conv.weight.flip(-1), conv.bias, groups=conv.groups)
-    else:
-        x = F.conv1d(F.pad(x, (width - 1, 0)), conv.weight, conv.bias, groups=conv.groups)
-    return x.transpose(1, 2)
+    """Causal depthwise conv over (B, L, C) (mamba's conv1d, with ``conv``'s weights); ``anticausal`` mirrors it in
+    time for a reverse scan, so a reverse layer equals the forward layer run on the time-flipped sequence.
+
+    y_t = bias + sum_k w_k x_{t-(K-1)+k}, as K multiply-adds of shifted (B, L, C) slabs: this keeps channels
+    innermost, the layout of the Linear layers and of the scan, where F.conv1d wants (B, C, L) and a transpose each
+    way.
+    """
+    width, length = conv.kernel_size[0], x.shape[1]
+    weight = conv.weight[:, 0, :]  # (C, K)
+    padded = F.pad(x, (0, 0, 0, width - 1) if anticausal else (0, 0, width - 1, 0))
+    starts = [width - 1 - k for k in range(width)] if anticausal else list(range(width))
+    y = x * weight[:, width - 1] if conv.bias is None else torch.addcmul(conv.bias, x, weight[:, width - 1])
+    for k, start in enumerate(starts[:-1]):
+        y.addcmul_(padded[:, start : start + length], weight[:, k])  # in place: one (B, L, C) buffer, not K
+    return y
 
 
 def _zero_padding(x: Tensor, mask: Tensor | None) -> Tensor:

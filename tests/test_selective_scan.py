@@ -13,6 +13,7 @@ from motionaug.models.selective_scan import (
     MambaLayer,
     _cuda_kernel,
     _ScanWorkers,
+    causal_conv1d,
     selective_scan,
     selective_scan_reference,
 )
@@ -260,6 +261,16 @@ def test_layers_keep_shape() -> None:
         y = layer(x)
         assert y.shape == x.shape and torch.isfinite(y).all()
         assert layer.in_proj.out_features == 2 * 2 * 16  # expand = 2
+
+
+def test_causal_conv_is_mambas_conv1d() -> None:
+    """causal_conv1d equals nn.Conv1d over the left-zero-padded sequence (mamba's conv1d, truncated to L); the
+    anticausal one is the causal one on flipped time."""
+    conv = torch.nn.Conv1d(6, 6, 4, groups=6).double()
+    x = torch.randn(2, 9, 6, dtype=F64)
+    want = torch.nn.functional.conv1d(x.transpose(1, 2), conv.weight, conv.bias, padding=3, groups=6)[..., :9]
+    torch.testing.assert_close(causal_conv1d(conv, x), want.transpose(1, 2))
+    torch.testing.assert_close(causal_conv1d(conv, x, anticausal=True), causal_conv1d(conv, x.flip(1)).flip(1))
 
 
 def test_reverse_layer_is_the_forward_layer_on_flipped_time() -> None:
