@@ -42,6 +42,7 @@ from motionaug.augment.eval.inputs import features_to_joints, pad_batch
 from motionaug.augment.eval.metrics import mpjpe, recognition_accuracy
 from motionaug.augment.methods.base import TransferOutput
 from motionaug.augment.methods.onthefly import OnTheFlyMethod, OnTheFlyModel, longest_frames, parse_params, retimed
+from motionaug.augment.outputs.checksums import RUN_FACTS
 from motionaug.augment.training.base_models import BaseModels, BaseModelsInfo, config_dict
 from motionaug.augment.training.evaluators import evaluators_folder
 from motionaug.models.mdm import MDM, MDMConfig
@@ -218,6 +219,7 @@ def run_variant(
     artifact = method.prepare(spec, examples, base_dir, corpus, work / f"artifact-{name}")
     prepare_s = time.perf_counter() - start
     info = json.loads((artifact / "artifact.json").read_text())
+    timings = json.loads((artifact / RUN_FACTS).read_text())
     model: OnTheFlyModel = method.load(artifact, base_dir)
     judges = load_classifiers(base_dir) if evaluators_folder(base_dir) else None
     start = time.perf_counter()
@@ -234,8 +236,8 @@ def run_variant(
     return {
         "variant": name,
         "prepare_s": prepare_s,
-        "finetune_s": info["timings"].get("finetune_s"),
-        "pairs_and_pool_s": info["timings"].get("pairs_and_pool_s"),
+        "finetune_s": timings.get("finetune_s"),
+        "pairs_and_pool_s": timings.get("pairs_and_pool_s"),
         "steps": len(curve),
         "pool_clips": info["pool_clips"],
         "tempo": info["tempo"],

@@ -88,3 +88,16 @@ def test_registry_validates_params_and_names_methods() -> None:
     with pytest.raises(MotionDataError, match="unknown method 'nope'"):
         method_class("nope")
     assert create_method("stats", {"strength": 0.25}).params.strength == 0.25
+
+
+def test_an_artefact_checksum_ignores_its_wall_clock_facts(tmp_path: Path) -> None:
+    """Two artefacts that differ only in how long they took to make have the same checksum (shards cite it)."""
+    from motionaug.augment.outputs.checksums import RUN_FACTS, sha256_tree
+
+    for name, seconds in (("a", 1.5), ("b", 99.0)):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "weights.bin").write_bytes(b"same")
+        (tmp_path / name / RUN_FACTS).write_text(f'{{"finetune_s": {seconds}}}')
+    assert sha256_tree(tmp_path / "a") == sha256_tree(tmp_path / "b") == sha256_tree(tmp_path / "a")
+    (tmp_path / "b" / "weights.bin").write_bytes(b"other")
+    assert sha256_tree(tmp_path / "a") != sha256_tree(tmp_path / "b")

@@ -14,10 +14,15 @@ def sha256_file(path: Path, chunk: int = 1 << 20) -> str:
     return digest.hexdigest()
 
 
+RUN_FACTS = "timings.json"
+"""A file of wall-clock facts about how an artefact was made: not part of what it is, so outside its checksum
+(the same command and seed give the same checksum on a busy machine and an idle one)."""
+
+
 def sha256_tree(folder: Path) -> tuple[str, int]:
-    """(checksum over relative paths and contents of every file, file count), independent of walk order."""
+    """(checksum over relative paths and contents of every file but ``RUN_FACTS``, file count), in any walk order."""
     digest = hashlib.sha256()
-    files = sorted(p for p in Path(folder).rglob("*") if p.is_file())
+    files = sorted(p for p in Path(folder).rglob("*") if p.is_file() and p.name != RUN_FACTS)
     for path in files:
         digest.update(path.relative_to(folder).as_posix().encode() + b"\0" + sha256_file(path).encode())
     return digest.hexdigest(), len(files)

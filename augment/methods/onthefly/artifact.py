@@ -47,7 +47,6 @@ class OnTheFlyArtifact(BaseModel):
     tempo: float = 1.0
     tempo_note: str = ""
     loss_curve: list[dict[str, float]]
-    timings: dict[str, float]
 
 
 def base_fingerprint(base_dir: Path) -> str:

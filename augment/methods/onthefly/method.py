@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -14,6 +15,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 from pydantic import BaseModel, ValidationError
 
 from motionaug.augment.corpus.clip import MotionClip
+from motionaug.augment.io import atomic_write_text
 from motionaug.augment.methods.base import (
     ARTIFACT_WEIGHTS,
     Progress,
@@ -39,6 +41,7 @@ from motionaug.augment.methods.onthefly.finetuning import ContentPool, FitResult
 from motionaug.augment.methods.onthefly.model import OnTheFlyModel
 from motionaug.augment.methods.onthefly.pairs import make_pairs
 from motionaug.augment.methods.onthefly.params import METHOD_NAME, POOL_CLIPS, OnTheFlyParams, validate_params
+from motionaug.augment.outputs.checksums import RUN_FACTS
 from motionaug.augment.training.base_models import BASE_JSON, BaseModels
 from motionaug.models.text_encoder import TextEncoder
 from motionaug.schemas.errors import MotionDataError, first_error
@@ -159,9 +162,10 @@ class OnTheFlyMethod(StyleTransferMethod):
             tempo=model.tempo,
             tempo_note=fit.tempo_note,
             loss_curve=fit.curve,
-            timings=fit.timings,
         )
-        return write_artifact(out_dir, info, weights)
+        write_artifact(out_dir, info, weights)
+        atomic_write_text(out_dir / RUN_FACTS, json.dumps(fit.timings, indent=1, sort_keys=True) + "\n")
+        return out_dir
 
     # ---- per worker: artefact -> loaded style ----------------------------------------------------------------
 
