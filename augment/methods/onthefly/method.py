@@ -161,10 +161,11 @@ class OnTheFlyMethod(StyleTransferMethod):
             pool_skipped=skipped,
             tempo=model.tempo,
             tempo_note=fit.tempo_note,
-            loss_curve=fit.curve,
+            loss_curve=[{k: v for k, v in point.items() if k != "seconds"} for point in fit.curve],
         )
         write_artifact(out_dir, info, weights)
-        atomic_write_text(out_dir / RUN_FACTS, json.dumps(fit.timings, indent=1, sort_keys=True) + "\n")
+        facts = {**fit.timings, "curve_seconds": [point.get("seconds") for point in fit.curve]}
+        atomic_write_text(out_dir / RUN_FACTS, json.dumps(facts, indent=1, sort_keys=True) + "\n")
         return out_dir
 
     # ---- per worker: artefact -> loaded style ----------------------------------------------------------------

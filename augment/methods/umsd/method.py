@@ -11,6 +11,7 @@ content noised to that step (SDEdit), which keeps more of the content's timing.
 
 from __future__ import annotations
 
+import json
 import time
 import zlib
 from collections.abc import Sequence
@@ -27,6 +28,7 @@ from motionaug.augment.corpus.style_examples import MIN_EXAMPLE_FRAMES, check_mo
 from motionaug.augment.device import bf16_autocast
 from motionaug.augment.diffusion import ddim_sample, start_step_for
 from motionaug.augment.eval.inputs import pad_batch
+from motionaug.augment.io import atomic_write_text
 from motionaug.augment.methods.base import (
     ARTIFACT_WEIGHTS,
     Progress,
@@ -63,6 +65,7 @@ from motionaug.augment.methods.umsd.training import (
     load_umsd,
     train_umsd,
 )
+from motionaug.augment.outputs.checksums import RUN_FACTS
 from motionaug.schemas.captions import Caption
 from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.styles import StyleSpec
@@ -109,7 +112,6 @@ class UmsdArtifact(BaseModel):
     example_frames: list[int]  # as stored (the middle ``train.max_frames`` of a longer example)
     trained_fingerprint: str
     weights_bytes: int
-    seconds: float
 
 
 def trained_fingerprint(folder: Path) -> str:
@@ -199,9 +201,11 @@ class UmsdMethod(StyleTransferMethod):
             example_frames=[int(w.shape[0]) for w in weights.values()],
             trained_fingerprint=trained_fingerprint(Path(trained)),
             weights_bytes=tensor_bytes(weights),
-            seconds=time.perf_counter() - start,
         )
-        return write_artifact(Path(out), info, weights)
+        write_artifact(Path(out), info, weights)
+        seconds = {"prepare_s": time.perf_counter() - start}
+        atomic_write_text(Path(out) / RUN_FACTS, json.dumps(seconds) + "\n")  # outside the artefact's checksum
+        return Path(out)
 
     def _checked_length(self, motion: np.ndarray, model: UmsdModel, source: str) -> np.ndarray:
         if motion.shape[0] < self.params.min_frames:
