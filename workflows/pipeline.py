@@ -231,7 +231,9 @@ class PlanStage(Stage):
                 for style in styles_for(clip_id, style_names, config.fan_out.per_clip, config.fan_out.seed):
                     per_style[style].append(clip_id)
             units.append(PlanUnit(unit=n, ids=ids, files=sorted({m[1] for m in members}), styles=per_style))
-        pool = units[0] if units and self.pool_size else None
+        # the pool: the first ``pool_size`` clips of the seeded order, whatever the unit size (the units cut the same
+        # order, so at unit_size == pool_size the pool is unit 0)
+        pool = sorted(chosen[int(i)] for i in order[: self.pool_size])
         return Plan(
             run_id=config.run_id(),
             n_clips=len(chosen),
@@ -239,8 +241,8 @@ class PlanStage(Stage):
             units=units,
             splits={m[0]: m[2] for m in chosen if m[2] is not None},
             rejects=n_rejects,
-            pool=pool.ids if pool else [],
-            pool_files=pool.files if pool else [],
+            pool=[m[0] for m in pool],
+            pool_files=sorted({m[1] for m in pool}),
         )
 
 
