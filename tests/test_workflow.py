@@ -263,3 +263,18 @@ def test_force_starts_over_and_foreign_folders_are_left_alone(corpus: Path, tmp_
     with pytest.raises(MotionDataError, match="not a motionaug run"):
         prepare_run_dir(load_run_config(None, data=config_dict(corpus, tmp_path / "mine")), force=True)
     assert (tmp_path / "mine" / "thesis.tex").is_file()
+
+
+def test_the_learning_pool_does_not_depend_on_the_unit_size(corpus: Path, tmp_path: Path) -> None:
+    """compute.unit_size says how work is cut, not what a method learns from."""
+    from motionaug.augment.methods.registry import create_method
+    from motionaug.workflows.pipeline import PlanStage
+
+    method = create_method("onthefly", {})
+    plans = []
+    for size in (4, 16):
+        data = {**config_dict(corpus, tmp_path / f"u{size}", unit_size=size), "method": {"name": "onthefly"}}
+        plans.append(PlanStage(load_run_config(None, data=data), method).run("plan"))
+    assert [len(u.ids) for u in plans[0].units] != [len(u.ids) for u in plans[1].units]
+    assert plans[0].pool == plans[1].pool and len(plans[0].pool) == min(method.content_pool, plans[0].n_clips)
+    assert set(plans[0].pool) <= {i for u in plans[0].units for i in u.ids}
