@@ -112,12 +112,14 @@ def style_words(style: str) -> StyleWords:
 def pick_clips(
     clips: Sequence[MotionClip], style: str, content: str, n_content: int
 ) -> tuple[MotionClip, list[MotionClip]]:
-    """One ``style`` clip of ``content`` (train split if marked), and neutral clips of every other content."""
+    """One ``style`` clip of ``content`` from the train split, and held-out (val/test) neutral clips of every other
+    content: no scored clip is one the prior or the evaluators trained on."""
     candidates = [c for c in clips if c.style == style and c.content == content]
     train = [c for c in candidates if c.meta.get("split") == "train"] or candidates
     if not train:
         raise SystemExit(f"no {style} {content} clip in the corpus")
-    neutral = [c for c in clips if c.style == "neutral" and c.content != content]
+    held_out = ("val", "test")
+    neutral = [c for c in clips if c.style == "neutral" and c.content != content and c.meta.get("split") in held_out]
     by_content: dict[str, list[MotionClip]] = {}
     for clip in neutral:
         by_content.setdefault(clip.content or "", []).append(clip)
