@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 import sys
 from collections import defaultdict
 from pathlib import Path
@@ -80,6 +81,14 @@ def real_takes(corpus: Path, split: str) -> dict[str, list[Any]]:
     return out
 
 
+def take_id(corpus: Path, first: str, take: int) -> str:
+    """The clip id of take ``take`` of the same pair as ``first`` (the first piece when the take was cut)."""
+    pair = re.match(r"^(?P<pair>.+)_\d{3}(_\d{4,}_\d{4,})?$", first)
+    stem = f"{pair.group('pair') if pair else first}_{take:03d}"
+    found = sorted(p.stem for p in (corpus / "new_joint_vecs").glob(f"{stem}*.npy"))
+    return found[0] if found else stem
+
+
 def run_protocol(args: argparse.Namespace) -> Path:
     """``motionaug run`` on the shipped config, with this bench's corpus, base models, split and output."""
     from motionaug.workflows.ray_executor import execute_run
@@ -101,8 +110,8 @@ def run_protocol(args: argparse.Namespace) -> Path:
         styles = []
         for style in config.styles:
             first = style.examples[0]
-            extra = [
-                first.model_copy(update={"source": first.source.replace("_001", f"_{i:03d}")})
+            extra = [  # takes 002, 003, ... of the same pair (a cut take: its first piece, found in the corpus)
+                first.model_copy(update={"source": take_id(args.corpus, first.source, i)})
                 for i in range(2, args.examples + 1)
             ]
             styles.append(style.model_copy(update={"examples": [first, *extra]}))
