@@ -24,10 +24,11 @@ import os
 import shutil
 import uuid
 import zlib
+from abc import abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, TypeVar
+from typing import TYPE_CHECKING, Any, ClassVar, Literal, TypeVar
 
 import numpy as np
 import torch
@@ -40,7 +41,14 @@ from motionaug.augment.diffusion import InpaintSpec
 from motionaug.augment.eval.inputs import features_to_joints, pad_batch
 from motionaug.augment.eval.metrics import foot_skating_ratio
 from motionaug.augment.io import atomic_path, atomic_write_text, read_json_model
-from motionaug.augment.methods.base import ARTIFACT_JSON, ARTIFACT_WEIGHTS
+from motionaug.augment.methods.base import (
+    ARTIFACT_JSON,
+    ARTIFACT_WEIGHTS,
+    Progress,
+    StyleTransferMethod,
+    TrainingSpec,
+    TrainProgress,
+)
 from motionaug.augment.motion.features import feature_slices
 from motionaug.augment.motion.tempo import retime, style_tempo
 from motionaug.models.motion_encoder import cosine_similarity
@@ -373,3 +381,32 @@ def write_model_folder(out: Path, tensors: dict[str, dict[str, Tensor]], texts: 
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
     return out
+
+
+class LabelledNetworkMethod(StyleTransferMethod):
+    """A method whose network is trained once per run on a labelled style corpus (Style-ERD, UMSD).
+
+    ``train`` fits ``fit_network`` on the corpus's train split (its neutral style renamed ``neutral``) and reuses a
+    folder made from the same corpus and training config. Params must have ``train`` and ``neutral_style``.
+    """
+
+    trains: ClassVar[bool] = True
+
+    @abstractmethod
+    def fit_network(self, clips: list[MotionClip], out: Path, progress: Progress | None) -> Path:
+        """Train the network on labelled clips into the folder ``out``."""
+
+    def is_trained(self, folder: Path) -> bool:
+        return (Path(folder) / TRAINED_JSON).is_file()
+
+    def train(self, corpus: Path, out: Path, spec: TrainingSpec, progress: TrainProgress | None = None) -> Path:
+        """Fit on the labelled corpus's train split; a folder made from the same corpus and config is reused."""
+        params: Any = self.params
+        record = training_record(corpus, params.train, params.neutral_style)
+        if trained_with(out, record):
+            return Path(out)
+        clips = labelled_training_clips(corpus, params.neutral_style)
+        report = None if progress is None else (lambda step, total, metrics: progress(self.name, step, total, metrics))
+        self.fit_network(clips, Path(out), report)
+        mark_trained(out, record)
+        return Path(out)

@@ -21,20 +21,14 @@ from motionaug.augment.corpus import MotionClip, Reject
 from motionaug.augment.corpus.humanml3d import read_labels
 from motionaug.augment.methods.base import (
     ARTIFACT_JSON,
+    Progress,
     StyleModel,
-    StyleTransferMethod,
-    TrainingSpec,
-    TrainProgress,
     TransferOutput,
 )
 from motionaug.augment.methods.common import (
-    TRAINED_JSON,
-    labelled_training_clips,
-    mark_trained,
+    LabelledNetworkMethod,
     revised_texts,
     style_vocab,
-    trained_with,
-    training_record,
 )
 from motionaug.augment.methods.erd.stream import transfer
 from motionaug.augment.methods.erd.training import ErdTrainConfig, load_erd, read_artifact, train_erd
@@ -55,13 +49,12 @@ class ErdParams(BaseModel):
     seed: int = 0
 
 
-class ErdMethod(StyleTransferMethod):
+class ErdMethod(LabelledNetworkMethod):
     """Style-ERD (Tao et al., CVPR 2022) as a motionaug method."""
 
     name: ClassVar[str] = METHOD_NAME
     Params: ClassVar[type[BaseModel]] = ErdParams
     params: ErdParams
-    trains: ClassVar[bool] = True
     smoke_params: ClassVar[dict[str, Any]] = {
         "train": {
             "steps": 3,
@@ -81,19 +74,8 @@ class ErdMethod(StyleTransferMethod):
 
     # ---- once per run: the network ----------------------------------------------------------------------
 
-    def is_trained(self, folder: Path) -> bool:
-        return (Path(folder) / TRAINED_JSON).is_file()
-
-    def train(self, corpus: Path, out: Path, spec: TrainingSpec, progress: TrainProgress | None = None) -> Path:
-        """Fit on the labelled corpus's train split; a folder made from the same corpus and config is reused."""
-        record = training_record(corpus, self.params.train, self.params.neutral_style)
-        if trained_with(out, record):
-            return Path(out)
-        clips = labelled_training_clips(corpus, self.params.neutral_style, NEUTRAL)
-        report = None if progress is None else (lambda step, total, metrics: progress("erd", step, total, metrics))
-        train_erd(clips, out, self.params.train, report)
-        mark_trained(out, record)
-        return Path(out)
+    def fit_network(self, clips: list[MotionClip], out: Path, progress: Progress | None) -> Path:
+        return train_erd(clips, out, self.params.train, progress)
 
     # ---- once per style ---------------------------------------------------------------------------------
 

@@ -33,32 +33,24 @@ from motionaug.augment.methods.base import (
     ARTIFACT_WEIGHTS,
     Progress,
     StyleModel,
-    StyleTransferMethod,
-    TrainingSpec,
-    TrainProgress,
     TransferOutput,
 )
 from motionaug.augment.methods.common import (
-    TRAINED_JSON,
+    LabelledNetworkMethod,
     MotionBatch,
     clip_noise,
     configure_threads,
     files_fingerprint,
-    labelled_training_clips,
-    mark_trained,
     read_artifact_json,
     read_tensors,
     revised_texts,
     style_vocab,
     tensor_bytes,
-    trained_with,
-    training_record,
     trajectory_channels,
     write_artifact,
 )
 from motionaug.augment.methods.umsd.training import (
     META_FILE,
-    NEUTRAL,
     WEIGHTS_FILE,
     UmsdModel,
     UmsdTrainConfig,
@@ -119,13 +111,12 @@ def trained_fingerprint(folder: Path) -> str:
     return files_fingerprint(folder, [META_FILE, WEIGHTS_FILE], "UMSD model file")
 
 
-class UmsdMethod(StyleTransferMethod):
+class UmsdMethod(LabelledNetworkMethod):
     """UMSD (Qian et al., ACM MM 2025) as a motionaug method."""
 
     name: ClassVar[str] = METHOD_NAME
     Params: ClassVar[type[BaseModel]] = UmsdParams
     params: UmsdParams
-    trains: ClassVar[bool] = True
     smoke_params: ClassVar[dict[str, Any]] = {
         "train": {
             "steps": 3,
@@ -144,19 +135,8 @@ class UmsdMethod(StyleTransferMethod):
 
     # ---- once per run: the network ----------------------------------------------------------------------
 
-    def is_trained(self, folder: Path) -> bool:
-        return (Path(folder) / TRAINED_JSON).is_file()
-
-    def train(self, corpus: Path, out: Path, spec: TrainingSpec, progress: TrainProgress | None = None) -> Path:
-        """Fit on the labelled corpus's train split; a folder made from the same corpus and config is reused."""
-        record = training_record(corpus, self.params.train, self.params.neutral_style)
-        if trained_with(out, record):
-            return Path(out)
-        clips = labelled_training_clips(corpus, self.params.neutral_style, NEUTRAL)
-        report = None if progress is None else (lambda step, total, metrics: progress("umsd", step, total, metrics))
-        train_umsd(clips, out, self.params.train, report)
-        mark_trained(out, record)
-        return Path(out)
+    def fit_network(self, clips: list[MotionClip], out: Path, progress: Progress | None) -> Path:
+        return train_umsd(clips, out, self.params.train, progress)
 
     # ---- once per style ---------------------------------------------------------------------------------
 
