@@ -20,12 +20,13 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import shutil
 import uuid
 import zlib
 from abc import abstractmethod
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, Literal, TypeVar
@@ -410,3 +411,34 @@ class LabelledNetworkMethod(StyleTransferMethod):
         self.fit_network(clips, Path(out), report)
         mark_trained(out, record)
         return Path(out)
+
+
+def run_steps(
+    step: Callable[[], dict[str, float]],
+    steps: int,
+    log_every: int,
+    what: str,
+    progress: Progress | None = None,
+    done: int = 0,
+    total: int | None = None,
+) -> list[dict[str, float]]:
+    """``steps`` training steps; returns the loss history averaged over each ``log_every`` window.
+
+    A non-finite loss stops training with one line naming ``what`` and the step. ``progress`` sees
+    ``done + step`` of ``total`` (default ``steps``): a training with an earlier phase counts on from it.
+    """
+    history: list[dict[str, float]] = []
+    window: dict[str, float] = {}
+    for n in range(steps):
+        metrics = step()
+        if not all(math.isfinite(v) for v in metrics.values()):
+            raise MotionDataError(f"{what} training", f"non-finite loss at step {n + 1}: {metrics}")
+        for k, v in metrics.items():
+            window[k] = window.get(k, 0.0) + v
+        if (n + 1) % log_every == 0 or n + 1 == steps:
+            count = (n % log_every) + 1
+            history.append({"step": float(n + 1)} | {k: v / count for k, v in window.items()})
+            window = {}
+        if progress is not None:
+            progress(done + n + 1, total or steps, metrics)
+    return history

@@ -17,7 +17,6 @@ the normaliser buffers), ``critics.safetensors`` (discriminator + content classi
 
 from __future__ import annotations
 
-import math
 import os
 import time
 from collections.abc import Sequence
@@ -35,7 +34,7 @@ from torch import Tensor
 from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.io import read_json_model
 from motionaug.augment.methods.base import Progress
-from motionaug.augment.methods.common import write_model_folder
+from motionaug.augment.methods.common import run_steps, write_model_folder
 from motionaug.augment.motion.features import compute_mean_std
 from motionaug.augment.motion.rotations import cont6d_to_matrix
 from motionaug.models.style_erd import (
@@ -447,20 +446,15 @@ def train_erd(
             trainer = ErdTrainer(data, config)
             total = config.classifier_steps + config.steps
             cls_info = trainer.train_classifier(progress, total)
-            history: list[dict[str, float]] = []
-            window: dict[str, float] = {}
-            for step in range(config.steps):
-                metrics = trainer.train_step(trainer.sample())
-                if not all(math.isfinite(v) for v in metrics.values()):
-                    raise MotionDataError("Style-ERD training", f"non-finite loss at step {step + 1}: {metrics}")
-                for k, v in metrics.items():
-                    window[k] = window.get(k, 0.0) + v
-                if (step + 1) % config.log_every == 0 or step + 1 == config.steps:
-                    count = (step % config.log_every) + 1
-                    history.append({"step": float(step + 1)} | {k: v / count for k, v in window.items()})
-                    window = {}
-                if progress is not None:
-                    progress(config.classifier_steps + step + 1, total, metrics)
+            history = run_steps(
+                lambda: trainer.train_step(trainer.sample()),
+                config.steps,
+                config.log_every,
+                "Style-ERD",
+                progress,
+                done=config.classifier_steps,
+                total=total,
+            )
     finally:
         torch.set_num_threads(threads)
     artifact = ErdArtifact(

@@ -31,7 +31,6 @@ config, data summary, losses).
 from __future__ import annotations
 
 import json
-import math
 import os
 import time
 from collections.abc import Sequence
@@ -50,7 +49,7 @@ from motionaug.augment.diffusion import NoiseSchedule, q_sample
 from motionaug.augment.eval.inputs import pad_batch
 from motionaug.augment.io import read_json_model
 from motionaug.augment.methods.base import Progress
-from motionaug.augment.methods.common import write_model_folder
+from motionaug.augment.methods.common import run_steps, write_model_folder
 from motionaug.augment.motion.features import Normalizer, compute_mean_std, feature_slices, recover_from_ric
 from motionaug.models.umsd import UmsdConfig, UmsdNet
 from motionaug.schemas.errors import MotionDataError
@@ -433,20 +432,9 @@ def train_umsd(
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(config.seed)
             trainer = UmsdTrainer(data, config)
-            history: list[dict[str, float]] = []
-            window: dict[str, float] = {}
-            for step in range(config.steps):
-                metrics = trainer.train_step(trainer.sample())
-                if not all(math.isfinite(v) for v in metrics.values()):
-                    raise MotionDataError("UMSD training", f"non-finite loss at step {step + 1}: {metrics}")
-                for k, v in metrics.items():
-                    window[k] = window.get(k, 0.0) + v
-                if (step + 1) % config.log_every == 0 or step + 1 == config.steps:
-                    count = (step % config.log_every) + 1
-                    history.append({"step": float(step + 1)} | {k: v / count for k, v in window.items()})
-                    window = {}
-                if progress is not None:
-                    progress(step + 1, config.steps, metrics)
+            history = run_steps(
+                lambda: trainer.train_step(trainer.sample()), config.steps, config.log_every, "UMSD", progress
+            )
     finally:
         torch.set_num_threads(threads)
     artifact = UmsdTrainArtifact(
