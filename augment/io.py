@@ -1,11 +1,14 @@
 """Atomic file writes: a reader sees the old file or the new one, never half of either.
 
 Each write goes to a uniquely named temporary file in the target's directory (so the final
-``os.replace`` is a same-filesystem rename) and is renamed into place only once complete.
+``os.replace`` is a same-filesystem rename) and is renamed into place only once complete. With ``fsync`` the
+file is flushed before the rename and its directory after it, so what was published survives power loss (a
+rename alone can be lost with the directory block that records it).
 """
 
 from __future__ import annotations
 
+import errno
 import os
 import uuid
 from collections.abc import Iterator
@@ -30,7 +33,7 @@ def atomic_path(path: str | os.PathLike[str], fsync: bool = False) -> Iterator[P
     """Yield a temporary path to write; on success it replaces ``path``, on error it is removed.
 
     For writers that want a file name rather than a handle (pyarrow, np.save to a path).
-    ``fsync`` also survives power loss, at a cost per file.
+    ``fsync`` also survives power loss, at a cost per file (two fsyncs: the file, then its directory).
     """
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
@@ -40,6 +43,8 @@ def atomic_path(path: str | os.PathLike[str], fsync: bool = False) -> Iterator[P
         if fsync:
             _fsync_file(tmp)
         os.replace(tmp, target)
+        if fsync:
+            fsync_dir(target.parent)
     finally:
         tmp.unlink(missing_ok=True)
 
@@ -72,6 +77,33 @@ def _fsync_file(path: Path) -> None:
         os.fsync(fd)
     finally:
         os.close(fd)
+
+
+def fsync_dir(path: str | os.PathLike[str]) -> None:
+    """Flush a directory's entries (a rename or a new file in it) to disk; a no-op where directories cannot
+    be opened (Windows) or synced (some FUSE and network file systems answer EINVAL)."""
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    except (PermissionError, IsADirectoryError):
+        return
+    try:
+        os.fsync(fd)
+    except OSError as err:
+        if err.errno not in (errno.EINVAL, errno.ENOTSUP, errno.EBADF):
+            raise
+    finally:
+        os.close(fd)
+
+
+def fsync_tree(folder: str | os.PathLike[str]) -> None:
+    """Flush every file and folder under ``folder`` (before the folder is renamed into place as one artefact)."""
+    root = Path(folder)
+    for path in sorted(root.rglob("*"), key=lambda p: -len(p.parts)):
+        if path.is_file() and not path.is_symlink():
+            _fsync_file(path)
+        elif path.is_dir():
+            fsync_dir(path)
+    fsync_dir(root)
 
 
 M = TypeVar("M", bound=BaseModel)

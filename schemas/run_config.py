@@ -1,27 +1,63 @@
 """The run configuration of ``motionaug run``: one YAML/JSON file, validated before any work starts.
 
 Everything is ``extra="forbid"`` so a typo is an error naming the field. Relative paths resolve against
-the config file's folder. The run id is a hash of what determines the rows (corpus, styles, method,
-fan-out, seed, unit and batch sizes), not of where or on what they are computed, so re-running the same
-config resumes the same run.
+the config file's folder. The run id is a hash of what determines the rows (corpus path and a fingerprint of
+its files, styles, method, fan-out, seed, unit and batch sizes), not of where or on what they are computed, so
+re-running the same config on the same corpus resumes the same run, and a corpus rewritten in place is a new one.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import os
 import re
 from pathlib import Path
 from typing import Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator, model_validator
 
 from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.styles import StyleSpec
 
 RUN_CONFIG_VERSION = 1
 RESOLVED_CONFIG_FILE = "config.resolved.json"
+CORPUS_CONTENT_DIRS = ("new_joint_vecs", "texts")
+"""Sub-folders of a corpus whose files are clips (HumanML3D's motion and caption folders, MOTION_DIR and TEXT_DIR
+of ``augment/corpus/humanml3d.py``); other sub-folders (renders, joints, a run folder put there) are not content."""
+
+
+def corpus_stat_fingerprint(path: Path) -> str:
+    """A digest of (name, size, modification time) of the corpus's files: a Parquet file, or a folder's top-level
+    files (split lists, labels, Mean/Std, Parquet parts) and those of ``CORPUS_CONTENT_DIRS``.
+
+    Cheap (one ``stat`` per file, no reads) and changed by any rewrite of the corpus, even to the same bytes.
+    Hidden files and ``*.tmp`` are left out: they are a writer's temporaries, not the corpus.
+    """
+    path = Path(path)
+    if path.is_file():
+        stat = path.stat()
+        entries = [f"{path.name}\0{stat.st_size}\0{stat.st_mtime_ns}"]
+    elif path.is_dir():
+        entries = _file_entries(path, "")
+        for sub in CORPUS_CONTENT_DIRS:
+            if (path / sub).is_dir():
+                entries += _file_entries(path / sub, f"{sub}/")
+    else:
+        return "absent"
+    return hashlib.sha256("\n".join(sorted(entries)).encode()).hexdigest()
+
+
+def _file_entries(folder: Path, prefix: str) -> list[str]:
+    entries = []
+    with os.scandir(folder) as listing:
+        for entry in listing:
+            if entry.name.startswith(".") or entry.name.endswith(".tmp") or not entry.is_file():
+                continue
+            stat = entry.stat()
+            entries.append(f"{prefix}{entry.name}\0{stat.st_size}\0{stat.st_mtime_ns}")
+    return entries
 
 
 class _Strict(BaseModel):
@@ -96,6 +132,35 @@ class BaseModelsConfig(_Strict):
     pretrain: dict[str, Any] = Field(
         default_factory=dict, description="Overrides of the size's pre-training preset (e.g. prior_time_s)."
     )
+    from_mdm: Path | None = Field(
+        default=None,
+        description="Official MDM humanml trans_enc checkpoint used as the prior: only the motion encoder and "
+        "evaluators are trained (docs/humanml3d.md).",
+    )
+    clip_weights: Path | None = Field(default=None, description="CLIP ViT-B/32 weights for from_mdm (never fetched).")
+    mdm_stats: Path | None = Field(default=None, description="Folder with the prior's HumanML3D Mean/Std.npy.")
+
+    @model_validator(mode="after")
+    def _mdm_paths_in_pretrain(self) -> BaseModelsConfig:
+        """Pre-training reads its options from ``pretrain``: the MDM paths are kept there too, in step."""
+        for name in MDM_FIELDS:
+            field, given = getattr(self, name), self.pretrain.get(name)
+            if field is not None and given is not None and Path(given) != field:
+                raise ValueError(f"{name} is given twice with different values ({field} and pretrain.{name} {given})")
+            if field is None and given is not None:
+                object.__setattr__(self, name, Path(given))
+            elif field is not None:
+                self.pretrain = {**self.pretrain, name: str(field)}
+        return self
+
+    def resolved(self, absolute: Any) -> BaseModelsConfig:
+        """Every path made absolute with ``absolute`` (the MDM ones inside ``pretrain`` too)."""
+        paths = {name: absolute(getattr(self, name)) for name in ("path", "corpus", *MDM_FIELDS)}
+        pretrain = {k: v for k, v in self.pretrain.items() if k not in MDM_FIELDS}
+        return BaseModelsConfig.model_validate({**self.model_dump(), **paths, "pretrain": pretrain})
+
+
+MDM_FIELDS = ("from_mdm", "clip_weights", "mdm_stats")
 
 
 class ComputeConfig(_Strict):
@@ -123,6 +188,7 @@ class RunConfig(_Strict):
     compute: ComputeConfig = Field(default_factory=ComputeConfig)
     output: Path = Path("runs/run")
     seed: int = 0
+    _fingerprint: tuple[str, str] | None = PrivateAttr(default=None)  # (resolved corpus path, its fingerprint)
 
     @field_validator("styles")
     @classmethod
@@ -140,11 +206,19 @@ class RunConfig(_Strict):
             raise ValueError(f"fan_out.per_clip {k} > number of styles {len(self.styles)}")
         return self
 
+    def corpus_fingerprint(self) -> str:
+        """``corpus_stat_fingerprint`` of the corpus, computed once per config object (it travels with it to tasks)."""
+        path = str(Path(self.corpus.path).resolve())
+        if self._fingerprint is None or self._fingerprint[0] != path:
+            self._fingerprint = (path, corpus_stat_fingerprint(Path(path)))
+        return self._fingerprint[1]
+
     def run_id(self) -> str:
         """Deterministic id of what the run produces (not where it is written or how it is computed)."""
         keep = self.model_dump(mode="json", include={"version", "corpus", "styles", "method", "fan_out", "seed"})
         keep["batching"] = [self.compute.unit_size, self.compute.batch_size]  # seeds are drawn per unit and batch
         keep["corpus"]["path"] = str(Path(keep["corpus"]["path"]).resolve())
+        keep["corpus"]["content"] = self.corpus_fingerprint()
         digest = hashlib.sha256(json.dumps(keep, sort_keys=True).encode()).hexdigest()
         return f"run-{digest[:12]}"
 
@@ -209,9 +283,7 @@ def resolve_paths(config: RunConfig, base: Path) -> RunConfig:
         update={
             "corpus": config.corpus.model_copy(update={"path": absolute(config.corpus.path)}),
             "output": absolute(config.output),
-            "base_models": config.base_models.model_copy(
-                update={"path": absolute(config.base_models.path), "corpus": absolute(config.base_models.corpus)}
-            ),
+            "base_models": config.base_models.resolved(absolute),
             "styles": styles,
         }
     )

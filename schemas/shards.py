@@ -57,6 +57,8 @@ def output_id(source_id: str, style: str) -> str:
 
 
 class _Record(BaseModel):
+    """A JSON record of a run folder. Top-level records carry ``version``, their format: ``RunDir`` refuses another."""
+
     model_config = ConfigDict(extra="forbid")
 
 
@@ -90,6 +92,9 @@ class ArtifactMarker(_Record):
     sha256: str
     files: int
     seconds: float
+    trained_sha256: str | None = Field(
+        default=None, description="Checksum of the method's once-per-run models it was made with (None: none)."
+    )
 
 
 class ShardMarker(_Record):
@@ -102,6 +107,8 @@ class ShardMarker(_Record):
     rows: int
     rejects: int
     sha256: str
+    artifact_sha256: str = Field(default="", description="Checksum of the style artefact the rows were made with.")
+    trained_sha256: str | None = Field(default=None, description="Checksum of the once-per-run models (None: none).")
     seconds: float
     load_seconds: float = 0.0
     peak_rss_mb: float = Field(default=0.0, description="Peak resident memory of the worker process so far.")

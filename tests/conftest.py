@@ -41,3 +41,14 @@ TWO_STYLES = [
         "examples": [{"source": "000008", "description": "a person walks like an old person"}],
     },
 ]
+
+
+@pytest.fixture(scope="module")
+def ray_cluster():
+    """A real local Ray with 2 CPUs for one test module; yields its GCS address. Only this module's Ray is stopped."""
+    ray = pytest.importorskip("ray")
+    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+    assert not ray.is_initialized()
+    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield ray.get_runtime_context().gcs_address
+    ray.shutdown()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -10,8 +11,10 @@ import pytest
 
 from motionaug.augment.corpus import HumanML3DReader, read_parquet_corpus
 from motionaug.augment.outputs.export import export_run
+from motionaug.augment.outputs.run_dir import RunDir
+from motionaug.augment.outputs.shards import iter_shard_rows
 from motionaug.schemas.errors import MotionDataError
-from motionaug.schemas.run_config import load_run_config
+from motionaug.schemas.run_config import RunConfig, load_run_config
 
 N_CLIPS = 30
 STYLES = [
@@ -40,16 +43,20 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
-        data = {
-            "corpus": {"path": str(root / "corpus")},
-            "styles": STYLES,
-            "output": str(root / "run"),
-            "compute": {"unit_size": 16, "batch_size": 8},
-        }
-        execute_run(load_run_config(None, data=data))
+        execute_run(_config(root / "corpus", root / "run"))
     finally:
         ray.shutdown()
     return root / "run"
+
+
+def _config(corpus: Path, out: Path) -> RunConfig:
+    data = {
+        "corpus": {"path": str(corpus)},
+        "styles": STYLES,
+        "output": str(out),
+        "compute": {"unit_size": 16, "batch_size": 8},
+    }
+    return load_run_config(None, data=data)
 
 
 def _ids(folder: Path, split: str) -> list[str]:
@@ -107,3 +114,50 @@ def test_export_refuses_unfinished_runs_and_foreign_folders(run_dir: Path, tmp_p
         export_run(run_dir, tmp_path / "busy")
     with pytest.raises(MotionDataError, match="score"):
         export_run(run_dir, tmp_path / "scored", min_content_score=0.5)
+
+
+def _rows(run: Path) -> list[dict]:
+    return sorted(iter_shard_rows(run), key=lambda row: row["output_id"])
+
+
+def test_a_flipped_byte_in_a_shard_is_refused_by_every_reader_and_a_rerun_repairs_it(
+    run_dir: Path, tmp_path: Path
+) -> None:
+    import ray
+    from typer.testing import CliRunner
+
+    from motionaug.augment.eval.evaluation import evaluate_run, preview_grid, preview_transfer
+    from motionaug.workflows.cli import app
+    from motionaug.workflows.ray_executor import execute_run
+
+    run = tmp_path / "run"
+    shutil.copytree(run_dir, run)
+    shard = RunDir(run).shard_files()[0]
+    data = bytearray(shard.read_bytes())
+    data[len(data) // 2] ^= 0x01
+    shard.write_bytes(bytes(data))
+    source = _rows(run_dir)[0]
+    readers = {
+        "export": lambda: export_run(run, tmp_path / "out"),
+        "evaluate": lambda: evaluate_run(run),
+        "preview --grid": lambda: preview_grid(run, 2, tmp_path / "grid.png"),
+        "preview --clip": lambda: preview_transfer(run, source["source_id"], str(source["style"]), tmp_path / "a.gif"),
+    }
+    for name, read in readers.items():
+        with pytest.raises(MotionDataError, match="checksum mismatch; run `motionaug run` again") as err:
+            read()
+        assert err.value.source == str(shard), name
+    result = CliRunner().invoke(app, ["export", str(run), "--out", str(tmp_path / "out")])
+    lines = result.output.strip().splitlines()
+    assert result.exit_code == 1 and len(lines) == 1 and str(shard.name) in lines[0] and "checksum" in lines[0]
+    assert not (tmp_path / "out").exists()
+
+    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        summary = execute_run(_config(run_dir.parent / "corpus", run))
+    finally:
+        ray.shutdown()
+    transfer = summary.manifest.stages["transfer"]
+    assert transfer.tasks - transfer.skipped == 1  # only the damaged unit was redone
+    assert _rows(run) == _rows(run_dir)
+    assert export_run(run, tmp_path / "out").stylized == export_run(run_dir, tmp_path / "ref").stylized

@@ -24,10 +24,12 @@ from motionaug.augment.corpus.import_bvh import (
     corpus_licence,
     cut_bounds,
     import_bvh,
+    iter_bvh_clips,
     split_takes,
 )
 from motionaug.augment.corpus.parquet import read_parquet_corpus
 from motionaug.augment.motion.features import compute_mean_std
+from motionaug.augment.motion.retarget import JointMap
 from motionaug.augment.text.caption_revision import caption_words, has_style_words, neutralise_caption, revise_caption
 from motionaug.augment.text.label_captions import (
     CONTENT_PHRASES,
@@ -457,7 +459,7 @@ def test_other_inputs_keep_todays_behaviour(tmp_path: Path) -> None:
     assert read_labels(out)["my_take"]["style"] == "proud"
     licensed = import_bvh(src, tmp_path / "licensed", content="walk", licence="CC BY 4.0, Example Lab")
     assert corpus_licence(tmp_path / "licensed") == "CC BY 4.0, Example Lab" == licensed.licence
-    with pytest.raises(MotionDataError, match="not an empty folder"):
+    with pytest.raises(MotionDataError, match="is not empty; pass --append .* or --force"):
         import_bvh(src, out, content="walk")
 
 
@@ -470,6 +472,148 @@ def test_cli_imports_with_the_bandai2_options(dataset: Path, tmp_path: Path) -> 
     assert result.exit_code == 0, result.output
     assert "19" in result.output and "rejected" in result.output
     assert (out / "Mean.npy").is_file() and (out / "test.txt").is_file() and corpus_licence(out) == BANDAI_LICENCE
+
+
+# ---- target folder: --append, --force, all or nothing ------------------------------------------------------------
+
+
+def tree(root: Path) -> dict[str, bytes]:
+    return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def one_take(folder: Path, name: str, n_frames: int = 200, text: str | None = None) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{name}.bvh"
+    path.write_text(text if text is not None else synthetic_bvh(n_frames, 4.5), encoding="utf-8")
+    return path
+
+
+def test_append_adds_new_ids_and_never_overwrites(tmp_path: Path) -> None:
+    out = tmp_path / "corpus"
+    import_bvh(one_take(tmp_path / "a", "dataset-2_walk_proud_001"), out, mean_std=True)
+    before = tree(out)
+    batch = tmp_path / "b"
+    one_take(batch, "dataset-2_walk_proud_001", 150)  # same id, different motion: must be skipped
+    one_take(batch, "dataset-2_walk_proud_002")
+    summary = import_bvh(batch, out, mode="append", mean_std=True)
+    assert summary.clips == 1 and summary.skipped == ["dataset-2_walk_proud_001"]
+    after = tree(out)
+    assert after["new_joint_vecs/dataset-2_walk_proud_001.npy"] == before["new_joint_vecs/dataset-2_walk_proud_001.npy"]
+    assert ids(out / "all.txt") == ["dataset-2_walk_proud_001", "dataset-2_walk_proud_002"]
+    assert set(read_labels(out)) == {"dataset-2_walk_proud_001", "dataset-2_walk_proud_002"}
+    assert json.loads((out / "corpus.json").read_text())["clips"] == 2
+    assert len(list(HumanML3DReader(out, on_error="raise"))) == 2
+    expected = compute_mean_std(motion(out, i) for i in ids(out / "all.txt"))
+    np.testing.assert_allclose(np.load(out / "Mean.npy"), expected.mean, rtol=1e-5, atol=1e-6)
+    assert not list(tmp_path.glob(".*.tmp"))
+
+
+def test_parquet_append_adds_a_file(tmp_path: Path) -> None:
+    out = tmp_path / "pq"
+    import_bvh(one_take(tmp_path / "a", "dataset-2_walk_proud_001"), out, "parquet")
+    summary = import_bvh(one_take(tmp_path / "b", "dataset-2_walk_proud_002"), out, "parquet", mode="append")
+    assert summary.clips == 1
+    assert sorted(c.id for c in read_parquet_corpus(out)) == ["dataset-2_walk_proud_001", "dataset-2_walk_proud_002"]
+    with pytest.raises(MotionDataError, match="holds a parquet corpus; --append needs --format parquet"):
+        import_bvh(tmp_path / "b", out, mode="append")
+
+
+def test_force_replaces_and_a_failed_import_changes_nothing(tmp_path: Path) -> None:
+    out = tmp_path / "corpus"
+    import_bvh(one_take(tmp_path / "a", "dataset-2_walk_proud_001"), out)
+    before = tree(out)
+    broken = one_take(tmp_path / "bad", "dataset-2_walk_proud_009", text="HIERARCHY\nROOT nothing\n")
+    for mode in ("force", "append"):
+        with pytest.raises(MotionDataError, match=r"nothing imported \(1 rejected, 0 already in"):
+            import_bvh(broken, out, mode=mode)
+        assert tree(out) == before, mode
+    with pytest.raises(MotionDataError, match=r"nothing imported \(0 rejected, 1 already in"):
+        import_bvh(tmp_path / "a", out, mode="append")
+    summary = import_bvh(one_take(tmp_path / "c", "dataset-2_dash_old_003"), out, mode="force")
+    assert summary.clips == 1 and ids(out / "all.txt") == ["dataset-2_dash_old_003"]
+    assert set(tree(out)) == {k for k in before if "walk_proud_001" not in k} | {
+        "new_joint_vecs/dataset-2_dash_old_003.npy",
+        "texts/dataset-2_dash_old_003.txt",
+    }
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("keep")
+    with pytest.raises(MotionDataError, match="holds no corpus, so --force will not touch it"):
+        import_bvh(tmp_path / "c", tmp_path / "mine", mode="force")
+    assert (tmp_path / "mine" / "notes.txt").read_text() == "keep"
+
+
+def test_rejects_name_the_option_that_fixes_them(tmp_path: Path) -> None:
+    renamed = TEMPLATE.read_text(encoding="utf-8").replace("Hips", "Pelvis")
+    src = tmp_path / "mocap"
+    one_take(src, "take_one")
+    one_take(src, "dataset-2_walk_proud_002", text=renamed)
+    with pytest.raises(MotionDataError, match="nothing imported") as err:
+        import_bvh(src, tmp_path / "out")
+    assert "--joint-map" in err.value.reason  # the first reject (sorted file order) with its fix
+    rejects: list = []
+    assert list(iter_bvh_clips(src, rejects)) == []
+    reasons = {r.id: r.reason for r in rejects}
+    assert "--content" in reasons["take_one"] and "--joint-map" in reasons["dataset-2_walk_proud_002"]
+    assert "docs/joint-map.md" in reasons["dataset-2_walk_proud_002"]
+
+
+def test_style_alone_relabels_bandai_files(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    import_bvh(one_take(tmp_path / "a", "dataset-2_walk_proud_001"), out, style="elderly")
+    assert read_labels(out)["dataset-2_walk_proud_001"]["content"] == "walk"
+    assert read_labels(out)["dataset-2_walk_proud_001"]["style"] == "elderly"
+
+
+MIXAMO_NAMES = {"Chest": "Spine2", "Shoulder_": "Shoulder", "UpperArm_": "Arm", "LowerArm_": "ForeArm"}
+
+
+def mixamo_rig(text: str) -> str:
+    """The Bandai fixture's skeleton under the Mixamo-style names of docs/examples/joint-map.json."""
+    for side, word in (("L", "Left"), ("R", "Right")):
+        for bandai, mixamo in (
+            ("Shoulder", "Shoulder"),
+            ("UpperArm", "Arm"),
+            ("LowerArm", "ForeArm"),
+            ("Hand", "Hand"),
+            ("UpperLeg", "UpLeg"),
+            ("LowerLeg", "Leg"),
+            ("Foot", "Foot"),
+            ("Toes", "ToeBase"),
+        ):
+            text = re.sub(rf"\b{bandai}_{side}\b", f"{word}{mixamo}", text)
+    return re.sub(r"\bChest\b", "Spine2", text)
+
+
+def test_example_joint_map_imports_a_renamed_rig(tmp_path: Path) -> None:
+    example = Path(__file__).resolve().parents[1] / "docs" / "examples" / "joint-map.json"
+    assert JointMap.from_file(example).name == "mixamo-style-example"
+    one_take(tmp_path / "bandai", "dataset-2_walk_proud_001", text=synthetic_bvh(60, 1.0))
+    one_take(tmp_path / "mixamo", "dataset-2_walk_proud_001", text=mixamo_rig(synthetic_bvh(60, 1.0)))
+    import_bvh(tmp_path / "bandai", tmp_path / "ref")
+    with pytest.raises(MotionDataError, match="--joint-map"):
+        import_bvh(tmp_path / "mixamo", tmp_path / "unmapped")
+    import_bvh(tmp_path / "mixamo", tmp_path / "mapped", joint_map=example)
+    clip = "dataset-2_walk_proud_001"
+    assert np.array_equal(motion(tmp_path / "mapped", clip), motion(tmp_path / "ref", clip))
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({**json.loads(example.read_text()), "scale": -1}))
+    with pytest.raises(MotionDataError, match=r"bad joint map: scale: .*docs/joint-map.md") as err:
+        import_bvh(tmp_path / "mixamo", tmp_path / "never", joint_map=bad)
+    assert err.value.source == str(bad) and not (tmp_path / "never").exists()
+
+
+def test_cli_refuses_a_full_folder_and_fails_when_nothing_is_imported(tmp_path: Path) -> None:
+    from motionaug.workflows.cli import app
+
+    out = tmp_path / "out"
+    take = one_take(tmp_path / "a", "dataset-2_walk_proud_001")
+    assert CliRunner().invoke(app, ["corpus", "import-bvh", str(take), "--out", str(out)]).exit_code == 0
+    again = CliRunner().invoke(app, ["corpus", "import-bvh", str(take), "--out", str(out)])
+    assert again.exit_code == 1 and "--append" in again.output and "--force" in again.output
+    both = CliRunner().invoke(app, ["corpus", "import-bvh", str(take), "--out", str(out), "--append", "--force"])
+    assert both.exit_code == 2
+    skipped = CliRunner().invoke(app, ["corpus", "import-bvh", str(take), "--out", str(out), "--append"])
+    assert skipped.exit_code == 1 and "nothing imported (0 rejected, 1 already in" in skipped.output
 
 
 # ---- the real Bandai-2 ----------------------------------------------------------------------------------------------

@@ -52,16 +52,6 @@ def write_config(path: Path, data: dict) -> Path:
 
 
 @pytest.fixture(scope="module")
-def ray_cluster():
-    ray = pytest.importorskip("ray")
-    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-    assert not ray.is_initialized()
-    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
-    yield ray.get_runtime_context().gcs_address
-    ray.shutdown()
-
-
-@pytest.fixture(scope="module")
 def corpus(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from motionaug.augment.synth import generate_corpus
 
@@ -246,6 +236,7 @@ def test_run_id_ignores_where_but_not_what(corpus: Path, tmp_path: Path) -> None
 
 
 def test_force_starts_over_and_foreign_folders_are_left_alone(corpus: Path, tmp_path: Path) -> None:
+    from motionaug.augment.outputs.run_lock import RunLock
     from motionaug.schemas.errors import MotionDataError
     from motionaug.workflows.pipeline import write_resolved_config
     from motionaug.workflows.ray_executor import prepare_run_dir
@@ -254,15 +245,16 @@ def test_force_starts_over_and_foreign_folders_are_left_alone(corpus: Path, tmp_
     write_resolved_config(old)
     (tmp_path / "run" / ".unit-00001.parquet.1.abc.tmp").write_text("half")
     new = load_run_config(None, data=config_dict(corpus, tmp_path / "run"))
-    with pytest.raises(MotionDataError, match="holds run"):
-        prepare_run_dir(new, force=False)
-    prepare_run_dir(new, force=True)
+    with RunLock(tmp_path / "run"):
+        with pytest.raises(MotionDataError, match="holds run"):
+            prepare_run_dir(new, force=False)
+        prepare_run_dir(new, force=True)
     assert not any((tmp_path / "run").iterdir())
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine" / "thesis.tex").write_text("keep")
-    with pytest.raises(MotionDataError, match="not a motionaug run"):
+    with pytest.raises(MotionDataError, match="not a motionaug run"), RunLock(tmp_path / "mine"):
         prepare_run_dir(load_run_config(None, data=config_dict(corpus, tmp_path / "mine")), force=True)
-    assert (tmp_path / "mine" / "thesis.tex").is_file()
+    assert [p.name for p in (tmp_path / "mine").iterdir()] == ["thesis.tex"]
 
 
 def test_the_learning_pool_does_not_depend_on_the_unit_size(corpus: Path, tmp_path: Path) -> None:

@@ -13,7 +13,7 @@ import typer
 from rich.table import Table
 
 from motionaug.schemas.errors import MotionDataError
-from motionaug.workflows.cli_app import app, console, run_safely, usage_errors
+from motionaug.workflows.cli_app import app, console, note_output, run_safely, usage_errors
 
 
 @app.command("preview")
@@ -31,6 +31,7 @@ def preview_command(
 
     with usage_errors():
         _check_preview_args(path, clip, style, grid, RunDir(path).is_run())
+    note_output(out or path)
     with console.status("rendering preview"):
         if grid is not None:
             written = run_safely(lambda: preview_grid(path, grid, out, seed=seed))
@@ -71,6 +72,7 @@ def evaluate_command(
     from motionaug.augment.eval.evaluation import evaluate_run, write_scores
     from motionaug.augment.eval.report import SUMMARY_COLUMNS, format_value, write_report
 
+    note_output(run)
     with console.status(f"evaluating {run}"):
         evaluation = run_safely(lambda: evaluate_run(run, reference, base_models))
         scores = run_safely(lambda: write_scores(evaluation))

@@ -24,6 +24,7 @@ from motionaug.workflows.pipeline import (
     TransferStage,
     build_manifest,
     publish_record,
+    trained_sha256,
 )
 
 
@@ -50,6 +51,9 @@ class Backend(Protocol):
 
     def wait(self, handles: Sequence[Any]) -> tuple[Any, Any]: ...
 
+    def abandon(self, handles: Sequence[Any]) -> None:
+        """Stop what is still queued or running, after a unit failed or the driver was interrupted."""
+
 
 def run_unit(stage: Stage, key: Hashable, dependency: Any) -> Any:
     """The body of every unit, wherever it runs: do it, then publish its record as the marker."""
@@ -68,6 +72,9 @@ class LocalBackend:
 
     def wait(self, handles: Sequence[Any]) -> tuple[Any, Any]:
         return handles[0], handles[0].result
+
+    def abandon(self, handles: Sequence[Any]) -> None:
+        pass  # every unit already ran when it was submitted
 
 
 @dataclass(frozen=True, eq=False)
@@ -109,13 +116,17 @@ def run_stages(stages: Sequence[Stage], backend: Backend, progress: RunProgress)
             handle = backend.submit(stage, key, value)
             results[key] = handle
             pending[handle] = (stage.name, key)
-    while pending:
-        handle, result = backend.wait(list(pending))
-        name, key = pending.pop(handle)
-        out.results[name][key] = result
-        out.ran.setdefault(name, []).append(key)
-        ends[name] = time.perf_counter()
-        progress.advance(name)
+    try:
+        while pending:
+            handle, result = backend.wait(list(pending))
+            name, key = pending.pop(handle)
+            out.results[name][key] = result
+            out.ran.setdefault(name, []).append(key)
+            ends[name] = time.perf_counter()
+            progress.advance(name)
+    except BaseException:
+        backend.abandon(list(pending))
+        raise
     for stage in stages:
         seconds = ends[stage.name] - start
         out.timings[stage.name] = StageTiming(seconds=seconds, tasks=len(stage.keys()), skipped=skipped[stage.name])
@@ -143,7 +154,9 @@ def run_pipeline(config: RunConfig, backend: Backend, progress: RunProgress | No
         train = run_stages([TrainStage(config, method)], backend, progress)
         trained = train.results["train"]["trained"]
         timings.update(train.timings)
-    fan_out = run_stages([PrepareStage(config, plan, trained), TransferStage(config, plan, trained)], backend, progress)
+    digest = trained_sha256(trained)  # what the style artefacts and shards record they were made from
+    stages = [PrepareStage(config, plan, trained, digest), TransferStage(config, plan, trained, digest)]
+    fan_out = run_stages(stages, backend, progress)
     timings.update(fan_out.timings)
     start = time.perf_counter()
     artifacts = {str(style): marker for style, marker in fan_out.results["prepare"].items()}

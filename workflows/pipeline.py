@@ -10,6 +10,9 @@ executor (``workflows.executor``) schedules and owns completion; it never names 
     prepare   -> styles/<style>/ + styles/<style>.done          (one task per style)
     transfer  -> shards/style=<s>/unit-<n>.parquet + .done      (one task per unit x style, after its style)
     manifest  -> manifest.json + _SUCCESS
+
+Provenance: an artefact marker records the checksum of the once-per-run models it was made from, and a shard
+marker that of its style's artefact (and of those models); a unit whose inputs changed since is redone.
 """
 
 from __future__ import annotations
@@ -33,9 +36,10 @@ from motionaug.augment.corpus import Corpus, MotionClip, Reject, write_rejects
 from motionaug.augment.corpus.style_examples import load_style_examples
 from motionaug.augment.methods.base import StyleModel, StyleTransferMethod, TrainingSpec, TransferOutput
 from motionaug.augment.methods.registry import create_method
-from motionaug.augment.outputs.checksums import sha256_tree
+from motionaug.augment.outputs.checksums import sha256_file, sha256_tree
 from motionaug.augment.outputs.run_dir import RunDir
 from motionaug.augment.outputs.shards import output_row, publish_dir, write_shard
+from motionaug.augment.training.pretrain import TRAINING_RECORDS
 from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.run_config import RunConfig
 from motionaug.schemas.shards import ArtifactMarker, Manifest, Plan, PlanUnit, ShardMarker, StageTiming
@@ -68,6 +72,21 @@ def training_corpus(config: RunConfig) -> Path:
 def trained_dir(config: RunConfig) -> Path:
     """Where the method's once-per-run models are: ``base_models.path``, else ``<run>/base_models``."""
     return config.base_models.path or (config.output / "base_models")
+
+
+def trained_sha256(trained: str | None) -> str | None:
+    """Checksum of the once-per-run models (a folder or a file), None when the method has none."""
+    if trained is None:
+        return None
+    path = Path(trained)
+    return sha256_tree(path, TRAINING_RECORDS)[0] if path.is_dir() else sha256_file(path) if path.is_file() else None
+
+
+def current_artifact(run_dir: RunDir, style: str, trained: str | None) -> ArtifactMarker | None:
+    """The style's verified artefact marker when it was made from the once-per-run models of checksum
+    ``trained`` (None: the method has none); None otherwise: the artefact is (re)made."""
+    marker = run_dir.artifact(style)
+    return marker if marker is not None and marker.trained_sha256 == trained else None
 
 
 # ---- config checks -------------------------------------------------------------------------------
@@ -300,10 +319,11 @@ class PrepareStage(Stage):
 
     name = "prepare"
 
-    def __init__(self, config: RunConfig, plan: Plan, trained: str | None) -> None:
+    def __init__(self, config: RunConfig, plan: Plan, trained: str | None, trained_hash: str | None = None) -> None:
         super().__init__(config)
         self.plan = plan
         self.trained = Path(trained) if trained else None
+        self.trained_hash = trained_hash
 
     def resources(self) -> Resources:
         return Resources(cpus=self.config.compute.finetune_cpus, gpus=self.config.compute.finetune_gpus)
@@ -318,7 +338,7 @@ class PrepareStage(Stage):
         return self.run_dir.artifact_marker_path(str(key))
 
     def done(self, key: Hashable) -> ArtifactMarker | None:
-        return self.run_dir.artifact(str(key))
+        return current_artifact(self.run_dir, str(key), self.trained_hash)
 
     def run(self, key: Hashable, dependency: Any = None) -> ArtifactMarker:
         start = time.perf_counter()
@@ -344,6 +364,7 @@ class PrepareStage(Stage):
             sha256=digest,
             files=files,
             seconds=time.perf_counter() - start,
+            trained_sha256=self.trained_hash,
         )
 
 
@@ -361,11 +382,13 @@ class TransferStage(Stage):
 
     name = "transfer"
 
-    def __init__(self, config: RunConfig, plan: Plan, trained: str | None) -> None:
+    def __init__(self, config: RunConfig, plan: Plan, trained: str | None, trained_hash: str | None = None) -> None:
         super().__init__(config)
         self.plan = plan
         self.trained = Path(trained) if trained else None
+        self.trained_hash = trained_hash
         self.units = {u.unit: u for u in plan.units}
+        self._artifacts: dict[str, str | None] = {}  # style -> checksum of its current artefact (None: remade)
 
     def resources(self) -> Resources:
         return Resources(cpus=self.config.compute.transfer_cpus, gpus=self.config.compute.transfer_gpus)
@@ -380,7 +403,16 @@ class TransferStage(Stage):
         return self.run_dir.shard_marker_path(key.style, key.unit)  # type: ignore[attr-defined]
 
     def done(self, key: Hashable) -> ShardMarker | None:
-        return self.run_dir.shard(key.style, key.unit)  # type: ignore[attr-defined]
+        """The verified marker when the shard was made with the style's current artefact and models."""
+        style: str = key.style  # type: ignore[attr-defined]
+        marker = self.run_dir.shard(style, key.unit)  # type: ignore[attr-defined]
+        if marker is None:
+            return None
+        if style not in self._artifacts:
+            artifact = current_artifact(self.run_dir, style, self.trained_hash)
+            self._artifacts[style] = artifact.sha256 if artifact is not None else None
+        same = marker.artifact_sha256 == self._artifacts[style] and marker.trained_sha256 == self.trained_hash
+        return marker if same else None
 
     def run(self, key: Hashable, dependency: Any = None) -> ShardMarker:
         artifact: ArtifactMarker = dependency
@@ -408,10 +440,17 @@ class TransferStage(Stage):
                     continue
                 ctx = {**context, "fps": clip.fps, "seed": seed}
                 rows.append(output_row(result, clip.captions, ctx, clip.content, splits.get(clip.id)))
-        return self._publish(style, unit.unit, rows, rejects, start, load_seconds)
+        return self._publish(style, unit.unit, rows, rejects, start, load_seconds, artifact.sha256)
 
     def _publish(
-        self, style: str, unit: int, rows: list[dict], rejects: list[Reject], start: float, load_seconds: float
+        self,
+        style: str,
+        unit: int,
+        rows: list[dict],
+        rejects: list[Reject],
+        start: float,
+        load_seconds: float,
+        artifact_sha256: str,
     ) -> ShardMarker:
         shard = self.run_dir.shard_path(style, unit)
         digest = write_shard(rows, shard)
@@ -429,6 +468,8 @@ class TransferStage(Stage):
             rows=len(rows),
             rejects=len(rejects),
             sha256=digest,
+            artifact_sha256=artifact_sha256,
+            trained_sha256=self.trained_hash,
             seconds=time.perf_counter() - start,
             load_seconds=load_seconds,
             peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,

@@ -10,8 +10,9 @@ Token authentication: see docs/ray.md.
 
 from __future__ import annotations
 
+import logging
 import os
-import shutil
+import sys
 import time
 from collections.abc import Hashable, Iterator, Sequence
 from contextlib import contextmanager
@@ -20,8 +21,9 @@ from pathlib import Path
 from typing import Any
 
 from motionaug.augment.outputs.run_dir import RunDir
+from motionaug.augment.outputs.run_lock import LOCK_FILE, RunLock
 from motionaug.schemas.errors import MotionDataError
-from motionaug.schemas.run_config import ComputeConfig, RunConfig
+from motionaug.schemas.run_config import ComputeConfig, RunConfig, resolve_paths
 from motionaug.schemas.shards import Manifest
 from motionaug.workflows.executor import RunProgress, run_pipeline, run_unit
 from motionaug.workflows.pipeline import Stage, check_config, write_resolved_config
@@ -45,9 +47,41 @@ class RunSummary:
 # ---- Ray session ---------------------------------------------------------------------------------
 
 
+LOOPBACK = "127.0.0.1"
+# Ray turns a loopback ``_node_ip_address`` into the host's routable address unless this is off; it reads it when
+# ``ray`` is first imported (in this process) and in every process the embedded cluster starts.
+LOOPBACK_SWITCH = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+LOG = logging.getLogger(__name__)
+
+
 def ray_environment() -> None:
     """Process-wide Ray settings this product wants: no usage-stats upload."""
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+
+
+@contextmanager
+def loopback_only() -> Iterator[None]:
+    """An embedded cluster on 127.0.0.1 only (node address, GCS, raylet, dashboard): nothing another machine
+    can reach. Set around the import of ``ray`` and the start of the cluster, restored after."""
+    before = os.environ.get(LOOPBACK_SWITCH)
+    os.environ[LOOPBACK_SWITCH] = "0"
+    try:
+        yield
+    finally:
+        if before is None:
+            os.environ.pop(LOOPBACK_SWITCH, None)
+        else:
+            os.environ[LOOPBACK_SWITCH] = before
+
+
+def _check_loopback() -> None:
+    import ray
+
+    address = ray.util.get_node_ip_address()
+    if address != LOOPBACK:
+        LOG.warning(
+            "the embedded Ray listens on %s, not %s: ray was imported before motionaug started it", address, LOOPBACK
+        )
 
 
 def auth_token_available() -> bool:
@@ -84,13 +118,17 @@ def embedded_runtime_env() -> dict[str, Any]:
 
 
 @contextmanager
-def ray_session(compute: ComputeConfig) -> Iterator[None]:
+def ray_session(compute: ComputeConfig) -> Iterator[Any]:
     """Use the Ray this process is already connected to, else start/join one and shut it down after.
 
     Embedded (``address`` None): ``ray.init(num_cpus=...)`` starts a private local cluster; with token
     auth on, Ray generates ``~/.ray/auth_token`` itself. With an address the token must already be there
-    (``ray get-auth-token --generate`` before ``ray start --head``) or in ``RAY_AUTH_TOKEN``.
+    (``ray get-auth-token --generate`` before ``ray start --head``) or in ``RAY_AUTH_TOKEN``. The embedded
+    cluster binds 127.0.0.1 only (``loopback_only``; docs/ray.md, Security).
     """
+    if compute.address is None and "ray" not in sys.modules:
+        with loopback_only():
+            import ray
     import ray
 
     if ray.is_initialized():
@@ -100,22 +138,22 @@ def ray_session(compute: ComputeConfig) -> Iterator[None]:
     options: dict[str, Any] = {"include_dashboard": compute.include_dashboard, "log_to_driver": True}
     if compute.address:
         client_auth_for_address()
-        ray.init(address=compute.address, **options)
+        context = ray.init(address=compute.address, **options)
     else:
-        ray.init(  # address="local": never a stale "current cluster"
-            address="local", num_cpus=compute.num_cpus, runtime_env=embedded_runtime_env(), **options
-        )
+        with loopback_only():
+            context = ray.init(  # address="local": never a stale "current cluster"
+                address="local",
+                num_cpus=compute.num_cpus,
+                runtime_env=embedded_runtime_env(),
+                _node_ip_address=LOOPBACK,
+                dashboard_host=LOOPBACK,
+                **options,
+            )
+        _check_loopback()
     try:
-        yield
+        yield context  # the RayContext (its dashboard_url); None above when Ray was already running
     finally:
         ray.shutdown()
-
-
-def _assigned_threads() -> int:
-    import ray
-
-    cpus = ray.get_runtime_context().get_assigned_resources().get("CPU", 1.0)
-    return max(1, int(cpus))
 
 
 def _assigned_threads() -> int:
@@ -141,17 +179,39 @@ class RayBackend:
 
         self.remote = ray.remote(ray_unit)
         self.retries = retries
+        self.shared: dict[int, tuple[Stage, Any]] = {}
 
     def submit(self, stage: Stage, key: Hashable, dependency: Any) -> Any:
         res = stage.resources()
         options = {"name": stage.task_name(key), "num_cpus": res.cpus, "num_gpus": res.gpus}
-        return self.remote.options(max_retries=self.retries, **options).remote(stage, key, dependency)
+        return self.remote.options(max_retries=self.retries, **options).remote(self._put(stage), key, dependency)
+
+    def _put(self, stage: Stage) -> Any:
+        """The stage in the object store once, every task a reference to it: a stage carries the plan (1 MB at
+        15,000 clips), and a copy per task made the driver's memory and the bytes sent grow with corpus x tasks."""
+        import ray
+
+        held = self.shared.get(id(stage))
+        if held is None or held[0] is not stage:
+            held = self.shared[id(stage)] = (stage, ray.put(stage))
+        return held[1]
 
     def wait(self, handles: Sequence[Any]) -> tuple[Any, Any]:
         import ray
 
         ready, _ = ray.wait(list(handles), num_returns=1)
         return ready[0], _get(ready[0])
+
+    def abandon(self, handles: Sequence[Any], grace_s: float = 20.0) -> None:
+        """Cancel the run's other tasks and give them ``grace_s`` to end before the driver goes: a task that fails
+        after its driver has gone makes Ray log an error on the driver's stderr, beside the run's one line."""
+        import ray
+
+        if not handles:
+            return
+        for handle in handles:
+            ray.cancel(handle)
+        ray.wait(list(handles), num_returns=len(handles), timeout=grace_s)
 
 
 def _get(ref: Any) -> Any:
@@ -170,21 +230,29 @@ def _get(ref: Any) -> Any:
 
 
 def prepare_run_dir(config: RunConfig, force: bool) -> None:
-    """Start over (``force``), resume the same run, or refuse a folder that holds something else."""
+    """Start over (``force``), resume the same run, or refuse a folder that holds something else.
+
+    Only with the folder's ``RunLock`` held by this process: then nothing it deletes (``force``, the sweep of
+    temporaries) belongs to a live run.
+    """
     root = config.output
-    if root.exists() and any(root.iterdir()):
-        recorded = RunDir(root).recorded_run_id()
+    if not RunLock.is_held_here(root):
+        raise RuntimeError(f"{root}: prepare_run_dir needs the run lock (with RunLock(root): ...)")
+    run = RunDir(root)
+    if any(path.name != LOCK_FILE for path in root.iterdir()):
+        recorded = run.recorded_run_id()
         if recorded is None:
             raise MotionDataError(
                 str(root), "output folder is not empty and is not a motionaug run; choose another --out"
             )
         if force:
-            shutil.rmtree(root)
+            run.clear()
         elif recorded != config.run_id():
-            reason = f"holds run {recorded}, but this config is run {config.run_id()}; use --force or another --out"
+            reason = (
+                f"holds run {recorded}, but this config is run {config.run_id()} (the config or the corpus changed);"
+                " use --force or another --out"
+            )
             raise MotionDataError(str(root), reason)
-    root.mkdir(parents=True, exist_ok=True)
-    run = RunDir(root)
     run.success_path.unlink(missing_ok=True)
     run.sweep_temporaries()
 
@@ -193,13 +261,17 @@ def prepare_run_dir(config: RunConfig, force: bool) -> None:
 
 
 def execute_run(config: RunConfig, force: bool = False, progress: RunProgress | None = None) -> RunSummary:
-    """Run (or resume) the whole workflow for ``config``; returns the manifest and timings."""
+    """Run (or resume) the whole workflow for ``config`` as the one writer of its folder; returns the manifest
+    and timings. Relative paths are made absolute against the working directory first, so what the run stores
+    reads back from anywhere."""
+    config = resolve_paths(config, Path.cwd())
     check_config(config)
-    prepare_run_dir(config, force)
-    write_resolved_config(config)
-    start = time.perf_counter()
-    with ray_session(config.compute):
-        result = run_pipeline(config, RayBackend(config.compute.max_retries), progress)
+    with RunLock(config.output):
+        prepare_run_dir(config, force)
+        write_resolved_config(config)
+        start = time.perf_counter()
+        with ray_session(config.compute):
+            result = run_pipeline(config, RayBackend(config.compute.max_retries), progress)
     return RunSummary(
         run_dir=config.output,
         run_id=config.run_id(),

@@ -13,6 +13,7 @@ deterministic id (:func:`span_id`) and captions sharing one span share one cut.
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 from collections.abc import Iterable, Iterator
@@ -87,7 +88,8 @@ def load_npy(path: Path, ndim: int, width: int | None) -> np.ndarray:
                 raise MotionDataError(source, f"feature width {shape[-1]}, expected {width}")
             if dtype.kind != "f":
                 raise MotionDataError(source, f"dtype {dtype}, expected floating point")
-            flat = np.empty(int(np.prod(shape)), dtype=dtype)
+            _check_data_size(handle, shape, dtype, source)
+            flat = np.empty(math.prod(shape), dtype=dtype)
             got = handle.readinto(flat.view(np.uint8))
     except OSError as err:
         raise MotionDataError(source, f"unreadable ({err.strerror or err})") from None
@@ -95,6 +97,15 @@ def load_npy(path: Path, ndim: int, width: int | None) -> np.ndarray:
         raise MotionDataError(source, f"truncated .npy: {got} of {flat.nbytes} data bytes")
     array = flat.reshape(shape, order="F" if fortran else "C")
     return np.ascontiguousarray(array, dtype=np.float32)  # a no-op for the usual C-order float32
+
+
+def _check_data_size(handle, shape: tuple[int, ...], dtype: np.dtype, source: str) -> None:
+    """Compare the header's claim with the bytes on disk before allocating: a lying header is a reject, not a
+    MemoryError (a 192-byte file can claim 10^9 frames)."""
+    size = os.fstat(handle.fileno()).st_size
+    if math.prod(shape) * dtype.itemsize > size - handle.tell():
+        claim = f"{shape[0]} frames" if len(shape) == 2 else f"shape {shape}"
+        raise MotionDataError(source, f"truncated .npy: header says {claim} but file has {size} bytes")
 
 
 def _read_npy_header(handle, source: str) -> tuple[tuple[int, ...], bool, np.dtype]:

@@ -26,6 +26,7 @@ import shutil
 import time
 from collections import defaultdict
 from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
@@ -34,12 +35,21 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from motionaug.augment.corpus import REJECTS_FILE
 from motionaug.augment.corpus.clip import MotionClip
-from motionaug.augment.corpus.humanml3d import MOTION_DIR, load_npy, span_id, write_humanml3d
-from motionaug.augment.corpus.parquet import ParquetCorpusWriter
+from motionaug.augment.corpus.humanml3d import LABELS_FILE, MOTION_DIR, load_npy, span_id, write_humanml3d
+from motionaug.augment.corpus.import_target import ImportMode, ImportTarget
+from motionaug.augment.corpus.parquet import ParquetCorpusWriter, read_parquet_corpus
 from motionaug.augment.corpus.rejects import Reject, write_rejects
 from motionaug.augment.io import atomic_write_text
+from motionaug.augment.motion.bvh import read_bvh
 from motionaug.augment.motion.features import compute_mean_std, extract_features
-from motionaug.augment.motion.retarget import labels_from_bandai, load_bvh_as_t2m_joints
+from motionaug.augment.motion.retarget import (
+    BUILTIN_MAPS,
+    JointMap,
+    labels_from_bandai,
+    nominal_fps,
+    resample,
+    retarget_positions,
+)
 from motionaug.augment.text.label_captions import label_caption, label_captions
 from motionaug.schemas.errors import MotionDataError
 
@@ -90,6 +100,7 @@ class ImportSummary(BaseModel):
     cut_takes: int = 0
     pieces: int = Field(0, description="Clips cut from the takes in cut_takes.")
     too_short: list[str] = Field(default_factory=list, description=f"Clips under {MDM_MIN_FRAMES} frames.")
+    skipped: list[str] = Field(default_factory=list, description="Clip ids the target already held (append).")
     splits: dict[str, int] = Field(default_factory=dict, description="Clips per split file.")
     missing_pairs: dict[str, list[str]] = Field(default_factory=dict, description="'content/style' absent per split.")
     licence: str | None = None
@@ -133,9 +144,46 @@ def bvh_files(src: Path) -> list[Path]:
 
 
 def clip_labels(path: Path, content: str | None = None, style: str | None = None) -> tuple[str, str | None]:
-    """(content, style): the options when ``content`` is given, else the Bandai JSON/name; ``style`` overrides."""
-    c, s = (content, style) if content else labels_from_bandai(path)
+    """(content, style): the options when ``content`` is given, else the Bandai JSON/name; ``style`` overrides.
+
+    ``style`` alone relabels the style of Bandai files; other files need ``content`` (the reject says so).
+    """
+    if content:
+        return content, style
+    try:
+        c, s = labels_from_bandai(path)
+    except MotionDataError as err:
+        raise MotionDataError(err.source, f"{err.reason}; {LABELS_HINT}") from None
     return c, style or s
+
+
+LABELS_HINT = "pass --content (and --style) to label files not named like Bandai's"
+JOINT_MAP_HINT = "pass --joint-map FILE for this rig (docs/joint-map.md)"
+
+
+def load_joint_map(joint_map: JointMap | str | os.PathLike[str] | None) -> JointMap | None:
+    """The map given as an option, read once: a bad map file is one error up front, not a reject per file."""
+    if joint_map is None or isinstance(joint_map, JointMap):
+        return joint_map
+    try:
+        return JointMap.from_file(joint_map)
+    except MotionDataError as err:
+        raise MotionDataError(err.source, f"{err.reason} (format: docs/joint-map.md)") from None
+
+
+def t2m_joints(path: Path, joint_map: JointMap | None, fps: float) -> np.ndarray:
+    """(T, 22, 3) t2m joints of a BVH at ``fps``; a skeleton no map fits is a reject naming ``--joint-map``."""
+    motion = read_bvh(path)
+    if joint_map is None:
+        names = set(motion.names)
+        joint_map = next((m for m in BUILTIN_MAPS if m.source_joints() <= names), None)
+        if joint_map is None:
+            raise MotionDataError(str(path), f"no built-in joint map fits its joints {motion.names}; {JOINT_MAP_HINT}")
+    missing = sorted(joint_map.source_joints() - set(motion.names))
+    if missing:
+        reason = f"joint map {joint_map.name!r} needs joints the file lacks: {missing}; fix the --joint-map file"
+        raise MotionDataError(str(path), reason)
+    return resample(retarget_positions(motion, joint_map), nominal_fps(motion.frame_time), fps)
 
 
 def iter_bvh_clips(
@@ -143,21 +191,26 @@ def iter_bvh_clips(
     rejects: list[Reject],
     content: str | None = None,
     style: str | None = None,
-    joint_map: str | os.PathLike[str] | None = None,
+    joint_map: JointMap | str | os.PathLike[str] | None = None,
     fps: float = 20.0,
     captions: int = 3,
 ) -> Iterator[MotionClip]:
-    """Clips of every ``*.bvh`` under ``src`` (or ``src`` itself), in sorted order, with ``captions`` captions each."""
+    """Clips of every ``*.bvh`` under ``src`` (or ``src`` itself), in sorted order, with ``captions`` captions each.
+
+    Labels are checked before the BVH is parsed (cheap); every reject's reason names the option that fixes it,
+    where one does.
+    """
     seen: set[str] = set()
+    joint_map = load_joint_map(joint_map)
     for path in bvh_files(src):
         clip_id = clip_id_from_path(path)
         try:
             if clip_id in seen:
-                raise MotionDataError(str(path), f"duplicate clip id {clip_id!r}")
-            joints, _ = load_bvh_as_t2m_joints(path, joint_map=joint_map, fps=fps)
+                raise MotionDataError(str(path), f"duplicate clip id {clip_id!r}; rename one of the files")
+            c, s = clip_labels(path, content, style)
+            joints = t2m_joints(path, joint_map, fps)
             if len(joints) < MIN_FRAMES + 1:
                 raise MotionDataError(str(path), f"{len(joints)} frames at {fps:g} fps; need at least {MIN_FRAMES + 1}")
-            c, s = clip_labels(path, content, style)
             motion = extract_features(joints, source=str(path))
         except MotionDataError as err:
             rejects.append(Reject.from_error(clip_id, err))
@@ -310,11 +363,14 @@ def _write_licence(out: Path, licence: str, bandai: bool, licence_file: Path | N
         ]
     if licence_file is not None:
         lines.append(f"The source's licence text is in {LICENSE_FILE}.")
+        (out / LICENSE_FILE).unlink(missing_ok=True)  # may be a hard link into the corpus being appended to
         shutil.copyfile(licence_file, out / LICENSE_FILE)
     atomic_write_text(out / NOTICE_FILE, "\n".join(lines) + "\n")
 
 
 # ---- import -----------------------------------------------------------------------------------------------------
+
+MERGED_FILES = ("all.txt", "labels.jsonl", REJECTS_FILE, TOO_SHORT_FILE, *(f"{n}.txt" for n in (*SPLITS, "train_val")))
 
 
 def import_bvh(
@@ -331,9 +387,13 @@ def import_bvh(
     mean_std: bool = False,
     licence: str | None = None,
     captions: int = 3,
+    mode: ImportMode = "new",
 ) -> ImportSummary:
-    """Write every usable BVH under ``src`` to ``out`` (a new or empty folder); rejects go to ``out/rejects.jsonl``.
+    """Write every usable BVH under ``src`` to ``out``; rejects go to ``out/rejects.jsonl``.
 
+    ``mode``: ``new`` needs ``out`` absent or empty, ``append`` adds clips to the corpus in ``out`` (ids it holds
+    are skipped, never overwritten), ``force`` replaces the corpus in ``out``. The corpus is built in a staging
+    sibling and swapped in at the end, so a failed import leaves ``out`` as it was; nothing imported is an error.
     ``max_frames`` cuts long takes (``cut_bounds``); ``val_takes``/``test_takes`` > 0 split takes per (content,
     style) pair (``split_takes``) into ``train.txt``/``val.txt``/``test.txt``/``train_val.txt`` beside ``all.txt``
     (HumanML3D) or the ``split`` column (Parquet); ``mean_std`` writes ``Mean.npy``/``Std.npy`` from the train
@@ -344,30 +404,70 @@ def import_bvh(
     if not src.exists():
         raise MotionDataError(str(src), "does not exist")
     if max_frames is not None and max_frames < MIN_FRAMES:
-        raise MotionDataError("max_frames", f"must be at least {MIN_FRAMES}, got {max_frames}")
+        raise MotionDataError("--max-frames", f"must be at least {MIN_FRAMES}, got {max_frames}")
     if captions < 1 or val_takes < 0 or test_takes < 0:
         raise MotionDataError("options", "captions must be >= 1 and val/test takes >= 0")
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise MotionDataError(str(out), "is not an empty folder; import into a new or empty folder")
     files = bvh_files(src)
-    splitting = val_takes > 0 or test_takes > 0
-    split_of = _planned_splits(files, content, style, val_takes, test_takes) if splitting else {}
+    the_map = load_joint_map(joint_map)
+    target = ImportTarget.open(out, fmt, mode)
+    try:
+        options = ImportOptions(
+            fmt, content, style, the_map, max_frames, val_takes, test_takes, mean_std, licence, captions
+        )
+        summary = _import_into(target, src, files, options)
+        if summary.clips == 0:
+            first = f"; first: {summary.rejects[0]}" if summary.rejects else ""
+            reason = (
+                f"nothing imported ({len(summary.rejects)} rejected, {len(summary.skipped)} already in {out}){first}"
+            )
+            raise MotionDataError(str(src), reason)
+        target.publish()
+    finally:
+        target.discard()
+    summary.seconds = time.perf_counter() - started
+    return summary
+
+
+@dataclass(frozen=True)
+class ImportOptions:
+    """What ``import_bvh`` was asked to do (its arguments, the joint map read)."""
+
+    fmt: str
+    content: str | None
+    style: str | None
+    joint_map: JointMap | None
+    max_frames: int | None
+    val_takes: int
+    test_takes: int
+    mean_std: bool
+    licence: str | None
+    captions: int
+
+
+def _import_into(target: ImportTarget, src: Path, files: list[Path], o: ImportOptions) -> ImportSummary:
+    """The import proper, into ``target.stage``; files the import rewrites are merged with the target's."""
+    stage = target.stage
+    splitting = o.val_takes > 0 or o.test_takes > 0
+    split_of = _planned_splits(files, o.content, o.style, o.val_takes, o.test_takes) if splitting else {}
     bandai = any(is_bandai_name(path) for path in files)
-    licence = licence or (BANDAI_LICENCE if bandai else None)
+    licence = o.licence or (BANDAI_LICENCE if bandai else None)
 
     rejects: list[Reject] = []
-    summary = ImportSummary(clips=0, frames=0, rejects=rejects, out=str(out), licence=licence)
+    summary = ImportSummary(clips=0, frames=0, rejects=rejects, out=str(target.out), licence=licence)
     split_ids: dict[str, list[str]] = {name: [] for name in SPLITS}
     pairs: dict[str, set[str]] = {name: set() for name in (*SPLITS, "all")}
-    train_motion: list[np.ndarray] = []  # Parquet only: HumanML3D's train clips are read back from disk
 
     def counted() -> Iterator[MotionClip]:
-        for take in iter_bvh_clips(src, rejects, content, style, joint_map, captions=captions):
-            summary.takes += 1
+        for take in iter_bvh_clips(src, rejects, o.content, o.style, o.joint_map, captions=o.captions):
             split = split_of.get(take.id)
             if split:
                 take.meta["split"] = split
-            pieces = cut_clip(take, max_frames, captions) if max_frames else [take]
+            pieces = cut_clip(take, o.max_frames, o.captions) if o.max_frames else [take]
+            summary.skipped += [clip.id for clip in pieces if clip.id in target.existing]
+            pieces = [clip for clip in pieces if clip.id not in target.existing]
+            if not pieces:
+                continue
+            summary.takes += 1
             if len(pieces) > 1:
                 summary.cut_takes += 1
                 summary.pieces += len(pieces)
@@ -380,56 +480,90 @@ def import_bvh(
                     pairs[split].add(pair)
                 if clip.n_frames < MDM_MIN_FRAMES:
                     summary.too_short.append(clip.id)
-                if mean_std and fmt == "parquet" and (split == "train" if splitting else True):
-                    train_motion.append(clip.motion)
                 yield clip
 
-    if fmt == "humanml3d":
-        ids = write_humanml3d(counted(), out)
+    target.take_over(*MERGED_FILES)
+    if o.fmt == "humanml3d":
+        ids = write_humanml3d(counted(), stage)
     else:
-        out.mkdir(parents=True, exist_ok=True)
         ids = []
-        with ParquetCorpusWriter(out / "corpus.parquet") as writer:
+        with ParquetCorpusWriter(stage / target.next_parquet_name()) as writer:
             for clip in counted():
                 writer.write(clip)
                 ids.append(clip.id)
     summary.clips = len(ids)
-    write_rejects(rejects, out / REJECTS_FILE)
-    atomic_write_text(out / TOO_SHORT_FILE, "".join(f"{clip_id}\n" for clip_id in summary.too_short))
+    summary.rejects = rejects  # the model holds a copy of the list it was given
+    new_ids = set(ids)
+    old_rejects = [r for r in _old_rejects(target) if r.id not in new_ids]  # a re-import may fix an old reject
+    write_rejects([*old_rejects, *rejects], stage / REJECTS_FILE)
+    atomic_write_text(stage / TOO_SHORT_FILE, "".join(f"{clip_id}\n" for clip_id in summary.too_short))
+    too_short = target.merge_lines(TOO_SHORT_FILE)
+    if o.fmt == "humanml3d":
+        target.merge_lines("all.txt")
+        target.merge_lines(LABELS_FILE)
     if splitting:
         split_ids["train_val"] = split_ids["train"] + split_ids["val"]
-        if fmt == "humanml3d":
+        if o.fmt == "humanml3d":
             for name, members in split_ids.items():
-                atomic_write_text(out / f"{name}.txt", "".join(f"{clip_id}\n" for clip_id in members))
-        summary.splits = {name: len(members) for name, members in split_ids.items()}
+                atomic_write_text(stage / f"{name}.txt", "".join(f"{clip_id}\n" for clip_id in members))
         missing = {name: sorted(pairs["all"] - pairs[name]) for name in SPLITS}
         summary.missing_pairs = {name: absent for name, absent in missing.items() if absent}
-    if mean_std:
-        stats_ids = split_ids["train"] if splitting else ids
-        if fmt == "humanml3d":
-            motions: Iterable[np.ndarray] = (load_npy(out / MOTION_DIR / f"{i}.npy", 2, None) for i in stats_ids)
-        else:
-            motions = train_motion
-        compute_mean_std(motions).save(out)
+    if o.fmt == "humanml3d":
+        for name in (*SPLITS, "train_val"):
+            target.merge_lines(f"{name}.txt")
+    summary.splits = {name: len(members) for name, members in split_ids.items()} if splitting else {}
+    if o.mean_std or (target.appending and (stage / "Mean.npy").is_file()):  # never leave stale statistics
+        compute_mean_std(_train_motions(stage, o.fmt)).save(stage)
     if licence:
-        _write_licence(out, licence, bandai, _licence_file(src, files))
+        _write_licence(stage, licence, bandai, _licence_file(src, files))
     meta = CorpusMeta(
         source=src.name or str(src),
-        format=fmt,
+        format=o.fmt,
         licence=licence,
         attribution=BANDAI_ATTRIBUTION if bandai else None,
         commercial_use=False if bandai else None,
-        cut_rule=CUT_RULE.format(n=max_frames) if max_frames else None,
-        split_rule=SPLIT_RULE.format(val=val_takes, test=test_takes, need=val_takes + test_takes + 1)
+        cut_rule=CUT_RULE.format(n=o.max_frames) if o.max_frames else None,
+        split_rule=SPLIT_RULE.format(val=o.val_takes, test=o.test_takes, need=o.val_takes + o.test_takes + 1)
         if splitting
         else None,
-        mean_std=("train split" if splitting else "all clips") if mean_std else None,
-        captions_per_clip=captions,
+        mean_std=("train split" if splitting else "all clips") if o.mean_std else None,
+        captions_per_clip=o.captions,
         takes=summary.takes,
         clips=summary.clips,
         splits=summary.splits,
-        too_short_for_mdm=len(summary.too_short),
+        too_short_for_mdm=len(too_short),
     )
-    atomic_write_text(out / CORPUS_META_FILE, meta.model_dump_json(indent=2) + "\n")
-    summary.seconds = time.perf_counter() - started
+    atomic_write_text(stage / CORPUS_META_FILE, _merged_meta(target, meta).model_dump_json(indent=2) + "\n")
     return summary
+
+
+def _old_rejects(target: ImportTarget) -> list[Reject]:
+    return [Reject.model_validate_json(line) for line in target.old_lines(REJECTS_FILE)]
+
+
+def _train_motions(root: Path, fmt: str) -> Iterator[np.ndarray]:
+    """Motion of the train split (every clip when the corpus has no splits), read back from the staged corpus."""
+    if fmt == "humanml3d":
+        listed = root / "train.txt" if (root / "train.txt").is_file() else root / "all.txt"
+        for clip_id in listed.read_text(encoding="utf-8").split():
+            yield load_npy(root / MOTION_DIR / f"{clip_id}.npy", 2, None)
+        return
+    clips = list(read_parquet_corpus(root))
+    splitting = any(clip.meta.get("split") for clip in clips)
+    yield from (clip.motion for clip in clips if not splitting or clip.meta.get("split") == "train")
+
+
+def _merged_meta(target: ImportTarget, meta: CorpusMeta) -> CorpusMeta:
+    """``corpus.json`` of an append: the counts of what was there plus what was added."""
+    path = target.out / CORPUS_META_FILE
+    if not target.appending or not path.is_file():
+        return meta
+    try:
+        old = CorpusMeta.model_validate_json(path.read_text(encoding="utf-8"))
+    except ValueError:
+        return meta
+    splits = {k: old.splits.get(k, 0) + meta.splits.get(k, 0) for k in {*old.splits, *meta.splits}}
+    source = old.source if old.source == meta.source else f"{old.source} + {meta.source}"
+    return meta.model_copy(
+        update={"source": source, "takes": old.takes + meta.takes, "clips": old.clips + meta.clips, "splits": splits}
+    )

@@ -48,6 +48,7 @@ from motionaug.augment.eval.metrics import (
 from motionaug.augment.io import atomic_path
 from motionaug.augment.outputs.run_dir import RunDir
 from motionaug.augment.outputs.shards import iter_shard_rows, row_motion
+from motionaug.augment.outputs.verify import verified_shards
 from motionaug.augment.render.previews import features_to_joints
 from motionaug.augment.training.base_models import (
     BASE_JSON,
@@ -368,11 +369,13 @@ def evaluate_run(
     reference = Path(reference) if reference is not None else corpus
     classifiers = _classifiers(run_dir, manifest, config, Path(base_models) if base_models else None, notes)
     evaluators_saw_train = classifiers is not None and _evaluators_trained_on(classifiers, corpus)
-    source_ids = {r["source_id"] for r in iter_shard_rows(run_dir, columns=["source_id"])}
+    shards = verified_shards(RunDir(run_dir))
+    source_ids = {r["source_id"] for r in iter_shard_rows(run_dir, columns=["source_id"], files=shards)}
     if not source_ids:
         raise MotionDataError(str(run_dir), "run has no stylized clips to evaluate")
     sources = _read_sources(corpus, source_ids, notes)
-    records, out_feats = _score_rows(iter_shard_rows(run_dir, columns=_ROW_COLUMNS), sources, classifiers)
+    rows = iter_shard_rows(run_dir, columns=_ROW_COLUMNS, files=shards)
+    records, out_feats = _score_rows(rows, sources, classifiers)
     styles = [s["name"] for s in config.get("styles", [])] or sorted({r["style"] for r in records})
     real_feats = _real_features(reference, styles, classifiers, notes)
     style_of = np.array([r["style"] for r in records])
@@ -654,22 +657,25 @@ def read_content_scores(run_dir: Path) -> dict[str, float] | None:
 
 
 def find_corpus_clip(corpus: Path, clip_id: str) -> MotionClip:
-    """The clip ``clip_id`` of a corpus (a caption-span id ``<parent>_<start>_<end>`` too)."""
-    clip = Corpus(corpus).get(clip_id)
-    if clip is None:
-        raise MotionDataError(str(corpus), f"no clip with id {clip_id!r}")
-    return clip
+    """The clip ``clip_id`` of a corpus (a caption-span id ``<parent>_<start>_<end>`` too); a clip the corpus
+    rejects is an error with the reject's reason."""
+    clips, rejects = Corpus(corpus).load([clip_id])
+    if clips:
+        return clips[0]
+    found = [r for r in rejects if Path(r.source.split(":")[0]).is_file() and ".." not in r.source]
+    if found:  # the clip is there but unusable: say why (a file never opened from an unchecked id)
+        raise MotionDataError(found[0].source, found[0].reason)
+    raise MotionDataError(str(corpus), f"no clip with id {clip_id!r}")
 
 
-def find_stylized(run_dir: Path, source_id: str, style: str) -> dict:
-    """The shard row of ``source_id`` stylized as ``style``."""
+def find_stylized(run_dir: Path, source_id: str, style: str, shards: list[Path] | None = None) -> dict:
+    """The shard row of ``source_id`` stylized as ``style``, from ``shards`` (default: the run's, verified)."""
     run = RunDir(run_dir)
     styles = run.styles()
     if style not in styles:
         raise MotionDataError("--style", f"run has no style {style!r}; its styles are {styles}")
-    for file in run.shard_files():
-        if file.parent.name != f"style={style}":
-            continue
+    verified = verified_shards(run, complete=False, style=style) if shards is None else shards
+    for file in (f for f in verified if f.parent.name == f"style={style}"):
         table = pq.read_table(file, filters=[("source_id", "=", source_id)])
         if table.num_rows:
             return table.slice(0, 1).to_pylist()[0]
@@ -721,7 +727,10 @@ def preview_grid(run_dir: Path, n: int, out: Path | None = None, seed: int = 0, 
 
     if n < 1:
         raise MotionDataError("--grid", f"needs at least 1 clip, got {n}")
-    pairs = sorted((r["source_id"], str(r["style"])) for r in iter_shard_rows(run_dir, columns=["source_id", "style"]))
+    shards = verified_shards(RunDir(run_dir), complete=False)
+    pairs = sorted(
+        (r["source_id"], str(r["style"])) for r in iter_shard_rows(run_dir, ["source_id", "style"], files=shards)
+    )
     if not pairs:
         raise MotionDataError(str(run_dir), "run has no stylized clips yet")
     chosen = [
@@ -730,7 +739,7 @@ def preview_grid(run_dir: Path, n: int, out: Path | None = None, seed: int = 0, 
     corpus = Path(RunDir(run_dir).config()["corpus"]["path"])
     rows = []
     for source_id, style in chosen:
-        row = find_stylized(run_dir, source_id, style)
+        row = find_stylized(run_dir, source_id, style, shards)
         content = find_corpus_clip(corpus, source_id)
         panels = [
             Panel(features_to_joints(content.motion, T2M, f"clip {source_id}"), "content", CONTENT_COLOR),

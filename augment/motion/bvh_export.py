@@ -20,7 +20,9 @@ import numpy as np
 from motionaug.augment.corpus.humanml3d import check_id
 from motionaug.augment.eval.evaluation import read_run
 from motionaug.augment.motion.bvh import joints_to_bvh, read_bvh, write_bvh
+from motionaug.augment.outputs.run_dir import RunDir
 from motionaug.augment.outputs.shards import iter_shard_rows, row_motion
+from motionaug.augment.outputs.verify import verified_shards
 from motionaug.augment.render.previews import features_to_joints
 from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.skeleton import T2M
@@ -80,7 +82,7 @@ def export_bvh(run_dir: str | Path, out: str | Path, style: str | None = None) -
         raise MotionDataError(str(out), "exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)
     files, worst, with_positions = 0, 0.0, 0
-    for row in iter_shard_rows(run_dir, columns=_COLUMNS):
+    for row in iter_shard_rows(run_dir, columns=_COLUMNS, files=verified_shards(RunDir(run_dir), style=style)):
         if style is not None and row["style"] != style:
             continue
         name = check_id(row["output_id"], f"output id in {run_dir}")

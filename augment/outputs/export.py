@@ -28,6 +28,7 @@ from motionaug.augment.io import atomic_write_text
 from motionaug.augment.motion.features import Normalizer, compute_mean_std
 from motionaug.augment.outputs.run_dir import RunDir
 from motionaug.augment.outputs.shards import iter_shard_rows, row_captions, row_motion
+from motionaug.augment.outputs.verify import verified_shards
 from motionaug.schemas.errors import MotionDataError
 
 EXPORT_FILE = "export.json"
@@ -56,9 +57,10 @@ class _Collector:
         min_score: float | None,
         score_name: str,
         summary: ExportSummary,
+        shards: list[Path],
         evaluated: dict[str, float] | None = None,
     ) -> None:
-        self.run_dir, self.run_id, self.corpus = run_dir, run_id, corpus
+        self.run_dir, self.run_id, self.corpus, self.shards = run_dir, run_id, corpus, shards
         self.min_score, self.score_name = min_score, score_name
         self.evaluated = evaluated  # output_id -> content score from scores.parquet (``motionaug evaluate``)
         self.summary = summary
@@ -80,7 +82,7 @@ class _Collector:
             yield clip
 
     def _stylized(self) -> Iterator[MotionClip]:
-        for row in iter_shard_rows(self.run_dir):
+        for row in iter_shard_rows(self.run_dir, files=self.shards):
             if row["split"] != "train":
                 self.summary.held_out += 1
                 continue
@@ -112,7 +114,9 @@ def _shard_score(scores: dict[str, float], name: str) -> float:
     return scores.get(name, scores.get(f"{name}_score", -np.inf))
 
 
-def _check_scores(run_dir: Path, min_score: float | None, score_name: str, evaluated: dict[str, float] | None) -> None:
+def _check_scores(
+    run_dir: Path, shards: list[Path], min_score: float | None, score_name: str, evaluated: dict[str, float] | None
+) -> None:
     if min_score is None:
         return
     if evaluated is not None:
@@ -121,7 +125,7 @@ def _check_scores(run_dir: Path, min_score: float | None, score_name: str, evalu
         raise MotionDataError(
             str(run_dir / "scores.parquet"), "--min-content-score given, but no clip has a content score"
         )
-    for row in iter_shard_rows(run_dir, columns=["scores"]):
+    for row in iter_shard_rows(run_dir, columns=["scores"], files=shards):
         if np.isfinite(_shard_score(dict(row["scores"] or []), score_name)):
             return
     reason = f"--min-content-score given, but no row has a {score_name!r} score (method too simple?)"
@@ -146,10 +150,11 @@ def export_run(
     if not corpus.exists():
         raise MotionDataError(str(corpus), "the run's source corpus is gone; exports need it for the original clips")
     _check_target(out)
+    shards = verified_shards(RunDir(run_dir))
     evaluated = _evaluated_scores(run_dir) if min_content_score is not None else None
-    _check_scores(run_dir, min_content_score, score_name, evaluated)
+    _check_scores(run_dir, shards, min_content_score, score_name, evaluated)
     summary = ExportSummary(out=out, format=fmt)
-    collector = _Collector(run_dir, run_id, corpus, min_content_score, score_name, summary, evaluated)
+    collector = _Collector(run_dir, run_id, corpus, min_content_score, score_name, summary, shards, evaluated)
     tmp = out.with_name(f".{out.name}.{uuid.uuid4().hex[:12]}.tmp")
     try:
         if fmt == "humanml3d":

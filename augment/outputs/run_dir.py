@@ -2,14 +2,16 @@
 
 Layout (the records are the pydantic models of ``motionaug.schemas.shards``)::
 
-    config.resolved.json  plan.json  manifest.json  _SUCCESS
+    config.resolved.json  plan.json  manifest.json  _SUCCESS  _LOCK (while a run writes it)
     trained/...                                      (the method's once-per-run artefact, when it has one)
     styles/<style>/...  styles/<style>.done          (a style's artefact + its marker)
     shards/style=<style>/unit-00003.parquet  _unit-00003.done   (markers start with "_": dataset readers skip them)
     rejects/style=<style>/unit-00003.jsonl
 
 A unit of work is done when its marker exists and the checksum in it matches what it names; anything else is
-redone under the same name.
+redone under the same name. Records are published with fsync (file, then folder): a marker never outlives what it
+names across a power loss. A record of another format ``version`` is refused, never silently redone over.
+``_LOCK`` (``run_lock.RunLock``) says which process writes the folder.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from pydantic import BaseModel
 
 from motionaug.augment.io import atomic_write_text
 from motionaug.augment.outputs.checksums import sha256_file, sha256_tree
+from motionaug.augment.outputs.run_lock import LOCK_FILE
 from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.shards import ArtifactMarker, Manifest, Plan, ShardMarker
 
@@ -31,18 +34,34 @@ R = TypeVar("R", bound=BaseModel)
 
 
 def dump_json(path: Path, data: dict) -> None:
-    atomic_write_text(path, json.dumps(data, indent=1, sort_keys=True, default=str) + "\n")
+    atomic_write_text(path, json.dumps(data, indent=1, sort_keys=True, default=str) + "\n", fsync=True)
 
 
 def write_record(record: BaseModel, path: Path) -> None:
-    atomic_write_text(path, record.model_dump_json(indent=1) + "\n")
+    atomic_write_text(path, record.model_dump_json(indent=1) + "\n", fsync=True)
+
+
+def check_version(path: Path, data: object, kind: type[BaseModel]) -> None:
+    """Refuse a record whose format ``version`` is not the one ``kind`` reads (a folder of another motionaug)."""
+    field = kind.model_fields.get("version")
+    if field is None or not isinstance(data, dict) or "version" not in data:
+        return
+    if data["version"] != field.default:
+        reason = f"format version {data['version']}, this motionaug reads {field.default}"
+        raise MotionDataError(str(path), f"{reason}; use the motionaug that wrote it, or another --out")
 
 
 def read_record(path: Path, kind: type[R]) -> R | None:
-    """The record, or None when absent or unreadable (a torn or foreign file means 'not done')."""
+    """The record, or None when absent or unreadable (a torn or corrupt file means 'not done', and is redone);
+    one error when it is of another format version."""
     try:
-        return kind.model_validate_json(path.read_text(encoding="utf-8"))
+        data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError):
+        return None
+    check_version(path, data, kind)
+    try:
+        return kind.model_validate(data)
+    except ValueError:
         return None
 
 
@@ -139,7 +158,7 @@ class RunDir:
     def write_manifest(self, manifest: Manifest) -> None:
         """The manifest, then ``_SUCCESS``: the run is complete."""
         dump_json(self.manifest_path, manifest.model_dump(mode="json"))
-        atomic_write_text(self.success_path, "")
+        atomic_write_text(self.success_path, "", fsync=True)
 
     def manifest(self) -> Manifest:
         """The manifest of a complete run; one clear error otherwise."""
@@ -147,7 +166,11 @@ class RunDir:
             reason = "run is not complete (no _SUCCESS); finish it with `motionaug run` first"
             raise MotionDataError(str(self.root), reason)
         try:
-            return Manifest.model_validate_json(self.manifest_path.read_text(encoding="utf-8"))
+            data = json.loads(self.manifest_path.read_text(encoding="utf-8"))
+            check_version(self.manifest_path, data, Manifest)
+            return Manifest.model_validate(data)
+        except MotionDataError:
+            raise
         except ValueError as err:
             raise MotionDataError(
                 str(self.manifest_path), f"unreadable manifest ({str(err).splitlines()[0]})"
@@ -155,8 +178,20 @@ class RunDir:
 
     # ---- temporaries --------------------------------------------------------------------------------
 
+    def clear(self) -> None:
+        """Delete everything the folder holds but its lock (``--force``: start over, still as the one writer)."""
+        for path in self.root.iterdir():
+            if path.name == LOCK_FILE:
+                continue
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path)
+            else:
+                path.unlink()
+
     def sweep_temporaries(self) -> list[Path]:
-        """Remove ``*.tmp`` files and folders a killed process left behind; returns what was removed."""
+        """Remove ``*.tmp`` files and folders a killed process left behind; returns what was removed.
+
+        Call it holding the run lock only: then every temporary is a dead writer's, never a live run's."""
         removed = []
         for path in sorted(self.root.rglob(f"*{TMP_SUFFIX}"), key=lambda p: -len(p.parts)):
             if path.is_dir():

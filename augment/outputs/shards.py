@@ -15,7 +15,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from motionaug.augment.io import atomic_path
+from motionaug.augment.io import atomic_path, fsync_dir, fsync_tree
 from motionaug.augment.methods.base import TransferOutput
 from motionaug.augment.outputs.checksums import sha256_file
 from motionaug.schemas.captions import Caption
@@ -63,22 +63,31 @@ def rows_to_table(rows: Sequence[dict]) -> pa.Table:
 
 
 def write_shard(rows: Sequence[dict], path: Path) -> str:
-    """Write rows to ``path`` via a temporary file renamed into place; returns the file's sha256."""
-    with atomic_path(path) as tmp:
+    """Write rows to ``path`` via a temporary file renamed into place (fsynced); returns the file's sha256."""
+    with atomic_path(path, fsync=True) as tmp:
         pq.write_table(rows_to_table(rows), tmp, **WRITE_OPTIONS)
     return sha256_file(path)
 
 
 def publish_dir(tmp_dir: Path, final: Path) -> None:
-    """Move a finished folder into place, replacing an unverified leftover of an earlier attempt."""
+    """Move a finished folder into place, replacing an unverified leftover of an earlier attempt; its files and
+    the rename are flushed to disk first and after (a marker written next never outlives the folder)."""
+    fsync_tree(tmp_dir)
     if final.exists():
         shutil.rmtree(final)
     os.replace(tmp_dir, final)
+    fsync_dir(final.parent)
 
 
-def iter_shard_rows(run_dir: Path, columns: list[str] | None = None, batch_size: int = 64) -> Iterator[dict]:
-    """Rows of every published shard as Python dicts, one record batch in memory at a time."""
-    for file in sorted((Path(run_dir) / "shards").glob("style=*/unit-*.parquet")):
+def iter_shard_rows(
+    run_dir: Path, columns: list[str] | None = None, batch_size: int = 64, files: Sequence[Path] | None = None
+) -> Iterator[dict]:
+    """Rows of ``files`` (default: every shard file present) as Python dicts, one record batch in memory at a time.
+
+    Readers that must not use a damaged shard pass ``files=verified_shards(...)`` (``augment.outputs.verify``).
+    """
+    found = sorted((Path(run_dir) / "shards").glob("style=*/unit-*.parquet")) if files is None else files
+    for file in found:
         parquet = pq.ParquetFile(file)
         if parquet.schema_arrow.remove_metadata() != shard_schema().remove_metadata():
             raise MotionDataError(str(file), "not a motionaug shard (schema differs)")
