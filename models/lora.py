@@ -42,8 +42,17 @@ def _check_hyper(rank: int, alpha: float, dropout: float, fan_in: int, fan_out: 
 
 
 def _init_pair(a: Tensor, b: Tensor, generator: torch.Generator | None = None) -> None:
-    """A like nn.Linear's default init (so the path has signal), B zero (so the delta starts at zero)."""
-    nn.init.kaiming_uniform_(a, a=math.sqrt(5), generator=generator)
+    """A like nn.Linear's default init (so the path has signal), B zero (so the delta starts at zero).
+
+    A is drawn where ``generator`` lives (a CPU generator draws on CPU, then copies): same seed, same A anywhere.
+    """
+    if generator is not None and generator.device != a.device:
+        drawn = torch.empty(a.shape, dtype=a.dtype, device=generator.device)
+        nn.init.kaiming_uniform_(drawn, a=math.sqrt(5), generator=generator)
+        with torch.no_grad():
+            a.copy_(drawn)
+    else:
+        nn.init.kaiming_uniform_(a, a=math.sqrt(5), generator=generator)
     nn.init.zeros_(b)
 
 

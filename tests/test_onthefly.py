@@ -470,3 +470,62 @@ def test_workflow_sized_seeds_draw_noise() -> None:
     noise = clip_noise((2, 10, 4), ["a", "b"], big)
     assert noise.shape == (2, 10, 4) and torch.isfinite(noise).all()
     assert torch.equal(noise, clip_noise((2, 10, 4), ["a", "b"], big))
+
+
+# ---- the compute device -------------------------------------------------------------------------------------------
+
+
+def _tiny_run(
+    base_dir: Path, clips: dict[str, MotionClip], out: Path, lora_rank: int = 2, bf16: bool | None = False
+) -> dict[str, np.ndarray]:
+    """prepare (pairs, L_rec + L_s over a pool with a neutralised styled clip) -> load -> transfer, as arrays."""
+    raw = dict(FAST, max_steps=2, lambda_s=0.5, styled_corpus="neutralise", lora_rank=lora_rank, bf16=bf16)
+    raw["lora_biases"] = lora_rank > 0
+    method = OnTheFlyMethod(parse_params(raw), text_encoder=HashTextEncoder())
+    examples = load_style_examples(proud_spec(), {"ex0": clips["proud_walk"]})
+    pool = [clips["walk"], clips["kick"], clips["angry_run"]]
+    artifact = method.prepare(proud_spec(), examples, base_dir, pool, out)
+    arrays = {f"w/{k}": v.numpy() for k, v in load_file(str(artifact / ARTIFACT_WEIGHTS)).items()}
+    loaded = method.load(artifact, base_dir)
+    arrays["device"] = np.array(loaded.device.type)
+    for o in loaded.transfer([clips["walk"], clips["kick"], clips["angry_run"]], seed=7):
+        assert isinstance(o, TransferOutput)
+        arrays[o.source_id] = o.motion
+        arrays[f"{o.source_id}/scores"] = np.array([o.scores[k] for k in sorted(o.scores)])
+    return arrays
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="the default device is CUDA here: the CUDA test compares them")
+def test_explicit_cpu_device_gives_the_default_paths_arrays(
+    base_dir: Path, clips: dict[str, MotionClip], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.delenv("MOTIONAUG_DEVICE", raising=False)
+    default = _tiny_run(base_dir, clips, tmp_path / "default")
+    monkeypatch.setenv("MOTIONAUG_DEVICE", "cpu")
+    explicit = _tiny_run(base_dir, clips, tmp_path / "cpu")
+    assert explicit["device"] == "cpu" and set(default) == set(explicit) and len(default) > 10
+    for key, value in default.items():
+        np.testing.assert_array_equal(explicit[key], value, err_msg=key)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+@pytest.mark.parametrize("lora_rank", [0, 2])
+def test_cuda_finetune_and_transfer_match_cpu(
+    base_dir: Path, clips: dict[str, MotionClip], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, lora_rank: int
+) -> None:
+    """Same seed, same noise (drawn on CPU): fp32 on CUDA lands close to CPU; bf16 (CUDA's default) stays finite."""
+    monkeypatch.setenv("MOTIONAUG_DEVICE", "cpu")
+    cpu = _tiny_run(base_dir, clips, tmp_path / "cpu", lora_rank)
+    monkeypatch.setenv("MOTIONAUG_DEVICE", "cuda")
+    cuda = _tiny_run(base_dir, clips, tmp_path / "cuda", lora_rank)
+    assert cuda["device"] == "cuda" and set(cuda) == set(cpu)
+    for key, value in cpu.items():
+        if key == "device":
+            continue
+        assert np.isfinite(cuda[key]).all(), key
+        scale = max(1.0, float(np.abs(value).max()))
+        assert float(np.abs(cuda[key] - value).max()) <= 0.02 * scale, key
+    kept = trajectory_channels("horizontal")
+    np.testing.assert_array_equal(cuda["c0"][:, kept], clips["walk"].motion[:, kept])  # inpainted exactly
+    fast = _tiny_run(base_dir, clips, tmp_path / "bf16", lora_rank, bf16=None)  # None: bf16 autocast on CUDA
+    assert all(np.isfinite(v).all() for k, v in fast.items() if k != "device")

@@ -12,6 +12,7 @@ import torch
 from pydantic import ValidationError
 from safetensors.torch import load_file
 
+from motionaug.augment.device import DEVICE_ENV
 from motionaug.augment.diffusion import NoiseSchedule
 from motionaug.augment.diffusion.gaussian import sample_timesteps
 from motionaug.augment.eval.evaluation import load_classifiers
@@ -61,6 +62,15 @@ def tiny_config(**overrides: object) -> PretrainConfig:
         "max_frames": 60,
     }
     return PretrainConfig.for_size("tiny", **{**defaults, **overrides})
+
+
+@pytest.fixture(scope="module", autouse=True)
+def on_cpu():
+    """These tests compare weights bit for bit, which CUDA kernels do not promise: CPU even where a GPU is
+    (tests/test_pretrain_device.py covers CUDA)."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv(DEVICE_ENV, "cpu")
+        yield
 
 
 @pytest.fixture(scope="module")

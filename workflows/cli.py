@@ -23,7 +23,18 @@ from rich.table import Table
 
 from motionaug.schemas.errors import MotionDataError
 from motionaug.workflows import cli_inspect, cli_stream  # noqa: F401  (register their commands on the app)
-from motionaug.workflows.cli_app import app, console, corpus_app, err_console, run_safely, usage_errors
+from motionaug.workflows.cli_app import (
+    app,
+    console,
+    corpus_app,
+    err_console,
+    note_output,
+    run_safely,
+    usage_errors,
+)
+from motionaug.workflows.cli_expansion import expansion_app
+
+app.add_typer(expansion_app, name="expansion")
 
 if TYPE_CHECKING:
     from motionaug.schemas.run_config import RunConfig
@@ -51,6 +62,7 @@ def corpus_synth(
     """Render the procedural style corpus (the embedded default) in the HumanML3D layout."""
     from motionaug.augment.synth import generate_corpus
 
+    note_output(out)
     with console.status(f"rendering {clips} synthetic clips"):
         summary = run_safely(lambda: generate_corpus(out, clips, seed=seed))
     console.print(
@@ -84,11 +96,15 @@ def corpus_inspect(path: Annotated[Path, typer.Argument(help="A HumanML3D folder
 @corpus_app.command("import-bvh")
 def corpus_import_bvh(
     src: Annotated[Path, typer.Argument(help="A .bvh file or a folder searched recursively.")],
-    out: Annotated[Path, typer.Option(help="Output corpus folder (new or empty).")],
+    out: Annotated[Path, typer.Option(help="Output corpus folder (new or empty; else --append or --force).")],
     fmt: Annotated[Literal["humanml3d", "parquet"], typer.Option("--format", help="Output layout.")] = "humanml3d",
-    content: Annotated[str | None, typer.Option(help="Content label for every file (else from names/JSON).")] = None,
+    content: Annotated[
+        str | None, typer.Option(help="Content label for every file (else from Bandai names/JSON; others need it).")
+    ] = None,
     style: Annotated[str | None, typer.Option(help="Style label for every file (else from names/JSON).")] = None,
-    joint_map: Annotated[Path | None, typer.Option(help="Joint map JSON/YAML (docs/retargeting.md).")] = None,
+    joint_map: Annotated[
+        Path | None, typer.Option(help="Joint map JSON/YAML for a rig other than Bandai's (docs/joint-map.md).")
+    ] = None,
     max_frames: Annotated[
         int | None, typer.Option(min=10, help="Cut longer takes into equal pieces of at most this many frames (196).")
     ] = None,
@@ -97,11 +113,19 @@ def corpus_import_bvh(
     mean_std: Annotated[bool, typer.Option(help="Write Mean.npy/Std.npy from the train split.")] = False,
     licence: Annotated[str | None, typer.Option(help="The data's licence (Bandai file names imply theirs).")] = None,
     captions: Annotated[int, typer.Option(min=1, help="Captions per clip.")] = 3,
+    append: Annotated[
+        bool, typer.Option("--append", help="Add to the corpus in --out; clips it already holds are skipped.")
+    ] = False,
+    force: Annotated[bool, typer.Option("--force", help="Replace the corpus in --out.")] = False,
 ) -> None:
     """Retarget BVH files to the t2m skeleton at 20 fps, caption them from their labels and write a corpus
     (docs/bandai.md: the Bandai-2 protocol is --max-frames 196 --val-takes 3 --test-takes 3 --mean-std)."""
     from motionaug.augment.corpus.import_bvh import import_bvh
 
+    with usage_errors():
+        if append and force:
+            raise MotionDataError("--append/--force", "give one: --append adds to the corpus, --force replaces it")
+    note_output(out)
     with console.status(f"importing BVH from {src}"):
         summary = run_safely(
             lambda: import_bvh(
@@ -117,6 +141,7 @@ def corpus_import_bvh(
                 mean_std=mean_std,
                 licence=licence,
                 captions=captions,
+                mode="append" if append else "force" if force else "new",
             )
         )
     for reject in summary.rejects:
@@ -132,6 +157,7 @@ def corpus_import_bvh(
                 ("frames", summary.frames),
                 ("cut takes", f"{summary.cut_takes} -> {summary.pieces} clips"),
                 ("too short for MDM", len(summary.too_short)),
+                ("already in the corpus", len(summary.skipped)),
                 ("splits", _counts(summary.splits)),
                 ("licence", summary.licence or "-"),
                 ("seconds", f"{summary.seconds:.1f}"),
@@ -164,6 +190,7 @@ def demo(
     corpus exported in the HumanML3D layout."""
     from motionaug.workflows.demo import run_demo
 
+    note_output(out)
     with Progress(*RUN_COLUMNS, console=console) as bars:
         result = run_safely(lambda: run_demo(out, clips, _Bars(bars), base_models, method, size))
     _print_run_summary(result.run)
@@ -189,6 +216,26 @@ def pretrain(
         bool,
         typer.Option(help="Only the evaluators (content/style classifiers), into OUT: for methods without a prior."),
     ] = False,
+    from_mdm: Annotated[
+        Path | None,
+        typer.Option(help="Official MDM humanml trans_enc checkpoint as the prior: trains only encoder + evaluators."),
+    ] = None,
+    clip_weights: Annotated[
+        Path | None,
+        typer.Option(help="CLIP ViT-B/32 weights for --from-mdm (default: the checkpoint's, ~/.cache/clip)."),
+    ] = None,
+    mdm_stats: Annotated[
+        Path | None, typer.Option(help="Folder with the prior's HumanML3D Mean/Std.npy (default: beside it, corpus).")
+    ] = None,
+    workers: Annotated[
+        int, typer.Option(min=1, help="Data-parallel Ray Train workers (1: one process, no Ray); batch splits evenly.")
+    ] = 1,
+    gpus_per_worker: Annotated[
+        float, typer.Option(min=0, help="GPUs per Ray Train worker (NCCL); 0 = CPU workers (gloo).")
+    ] = 0.0,
+    address: Annotated[
+        str | None, typer.Option(help="Ray cluster address for --workers (default: RAY_ADDRESS or an embedded Ray).")
+    ] = None,
 ) -> None:
     """Train the base models: the T2M diffusion prior and the motion encoder, and the evaluators (OUT/evaluators)."""
     from motionaug.augment.training.pretrain import PretrainConfig, ensure_base_models, fit_evaluators
@@ -196,10 +243,18 @@ def pretrain(
 
     with usage_errors():
         options = apply_overrides({}, overrides or [])
+    mdm = {"from_mdm": from_mdm, "clip_weights": clip_weights, "mdm_stats": mdm_stats}
+    options |= {name: str(path.resolve()) for name, path in mdm.items() if path is not None}
     config = run_safely(lambda: PretrainConfig.for_size(size, seed=seed, **options))
     if evaluators_only:
         metrics = run_safely(lambda: fit_evaluators(corpus, out, config))
         console.print(_facts(f"evaluators in {out}", [(k, f"{v:.4f}") for k, v in sorted(metrics.items())]))
+        return
+    if workers > 1 or gpus_per_worker > 0:
+        from motionaug.workflows.pretrain_cluster import pretrain_on_ray
+
+        folder = run_safely(lambda: pretrain_on_ray(corpus, out, config, workers, gpus_per_worker, address))
+        _print_base_models(folder)
         return
     columns = (
         TextColumn("{task.description:>15}"),
@@ -219,10 +274,16 @@ def pretrain(
             bars.update(tasks[stage], completed=step, total=total, loss=loss)
 
         folder = run_safely(lambda: ensure_base_models(corpus, out, size, seed, progress=progress, config=config))
+    _print_base_models(folder)
+
+
+def _print_base_models(folder: Path) -> None:
     from motionaug.augment.training.base_models import BaseModels
 
     info = BaseModels.load(folder).info
     console.print(_facts(f"base models in {folder}", [(k, f"{v:.4f}") for k, v in sorted(info.metrics.items())]))
+    for note in info.notes:
+        console.print(f"note: {note}")
 
 
 RUN_COLUMNS = (
@@ -257,17 +318,50 @@ def run_command(
     overrides: Annotated[
         list[str] | None, typer.Option("--set", help="Override a config value: key.sub=value.")
     ] = None,
+    dry_run: Annotated[
+        bool, typer.Option("--dry-run", help="Print the plan, estimated time and disk; run and write nothing.")
+    ] = False,
+    dashboard: Annotated[
+        bool, typer.Option("--dashboard", help="Embedded Ray: start its dashboard (127.0.0.1) and print the URL.")
+    ] = False,
+    keep_dashboard: Annotated[
+        bool, typer.Option("--keep-dashboard", help="With --dashboard: keep it up after the run until Ctrl-C.")
+    ] = False,
+    log_every: Annotated[
+        float, typer.Option(min=0, help="Off a terminal (a job's log): seconds between a stage's progress lines.")
+    ] = 10.0,
 ) -> None:
     """Fine-tune every style and stylize the corpus into Parquet shards; re-running resumes."""
+    from contextlib import nullcontext
+
+    from motionaug.workflows.dashboard import dashboard_session, hold_dashboard
     from motionaug.workflows.pipeline import check_config
+    from motionaug.workflows.progress_log import LineProgress
     from motionaug.workflows.ray_executor import execute_run
 
     with usage_errors():
         cfg = _load_config(config, overrides or [], address, out)
+        if dashboard or keep_dashboard:
+            cfg = cfg.model_copy(update={"compute": cfg.compute.model_copy(update={"include_dashboard": True})})
         check_config(cfg)
-    with Progress(*RUN_COLUMNS, console=console) as bars:
-        summary = run_safely(lambda: execute_run(cfg, force=force, progress=_Bars(bars)))
-    _print_run_summary(summary)
+    if dry_run:
+        from motionaug.workflows.dry_run import dry_run_report, plan_run
+
+        for part in dry_run_report(run_safely(lambda: plan_run(cfg))):
+            console.print(part, highlight=False, soft_wrap=isinstance(part, str))
+        return
+    if (dashboard or keep_dashboard) and cfg.compute.address:
+        console.print("--dashboard: this run joins a cluster, whose own dashboard shows it (http://HEAD:8265)")
+    with dashboard_session(cfg.compute) as url:
+        if url:
+            console.print(f"dashboard: {url} (its token: ray get-auth-token; docs/ray.md)", highlight=False)
+        # rich bars redraw in place; off a terminal (a job's driver log) they would show only at the end
+        with Progress(*RUN_COLUMNS, console=console) if console.is_terminal else nullcontext() as bars:
+            progress = _Bars(bars) if bars is not None else LineProgress(every=log_every)
+            summary = run_safely(lambda: execute_run(cfg, force=force, progress=progress))
+        _print_run_summary(summary)
+        if url and keep_dashboard:
+            hold_dashboard(url, console.print)
 
 
 def _print_run_summary(summary: RunSummary) -> None:
@@ -300,7 +394,9 @@ def _load_config(path: Path, overrides: list[str], address: str | None, out: Pat
         updates["compute"] = config.compute.model_copy(update={"address": address})
     if out is not None:
         updates["output"] = out.resolve()
-    return config.model_copy(update=updates)
+    config = config.model_copy(update=updates)
+    note_output(config.output)
+    return config
 
 
 @app.command("status")
@@ -363,8 +459,8 @@ def submit_command(
             validate_method_params(cfg.method.name, cfg.method.params)
         else:
             check_config(cfg)
-    job = run_safely(lambda: submit_run(cfg, address, retry=retry))
-    console.print(f"submitted job {job.job_id} (run {job.run_id}, folder {job.run_dir})", highlight=False)
+    job = run_safely(lambda: submit_run(cfg, address, retry=retry, name=config.stem))
+    console.print(f"submitted job {job.job_id} ({job.name}; run {job.run_id}, folder {job.run_dir})", highlight=False)
     console.print(f"dashboard: {job.dashboard_url}/#/jobs/{job.job_id}", highlight=False)
     console.print(f"follow: motionaug logs {job.job_id} --address {address} --follow", highlight=False)
 
@@ -414,6 +510,7 @@ def export_command(
     """
     from motionaug.augment.outputs.export import export_run
 
+    note_output(out)
     if fmt == "bvh":
         from motionaug.augment.motion.bvh_export import export_bvh
 

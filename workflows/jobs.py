@@ -40,6 +40,7 @@ class SubmittedJob:
     run_dir: Path
     dashboard_url: str
     entrypoint: str
+    name: str = ""
 
 
 @dataclass(frozen=True)
@@ -49,6 +50,7 @@ class JobState:
     message: str
     run_dir: Path | None
     entrypoint: str
+    name: str = ""
 
 
 def job_id_for(run_or_job: str) -> str:
@@ -122,13 +124,39 @@ def shipped_config(config: RunConfig) -> dict[str, Any]:
     return data
 
 
+def job_name(config: RunConfig, name: str | None = None, max_styles: int = 4) -> str:
+    """What the dashboard's job list shows in its Name column: ``stats-synthetic: stats x 2 styles (proud, old)``."""
+    styles = [s.name for s in config.styles]
+    shown = ", ".join(styles[:max_styles]) + (f", +{len(styles) - max_styles} more" if len(styles) > max_styles else "")
+    label = "style" if len(styles) == 1 else "styles"
+    return f"{name or config.output.name}: {config.method.name} x {len(styles)} {label} ({shown})"
+
+
+def job_metadata(config: RunConfig, name: str | None = None) -> dict[str, str]:
+    """The job's metadata (strings only): ``job_name`` is the key Ray's dashboard shows as the job's name."""
+    return {
+        "job_name": job_name(config, name),
+        "run_id": config.run_id(),
+        "run_dir": str(config.output),
+        "config": name or "",
+        "method": config.method.name,
+        "styles": ",".join(s.name for s in config.styles),
+        "tool": "motionaug",
+    }
+
+
 def submit_run(
-    config: RunConfig, address: str, retry: bool = False, runtime_env: dict[str, Any] | None = None
+    config: RunConfig,
+    address: str,
+    retry: bool = False,
+    runtime_env: dict[str, Any] | None = None,
+    name: str | None = None,
 ) -> SubmittedJob:
     """Submit ``config`` as job ``motionaug-<run id>``; refuse (MotionDataError) if the run was submitted.
 
     ``retry`` resubmits a run whose every attempt FAILED or was STOPPED as ``motionaug-<run id>-<n>``
-    (Ray never reuses a submission id); the new job resumes from the shards already on disk.
+    (Ray never reuses a submission id); the new job resumes from the shards already on disk. ``name`` (the
+    config file's name) leads the job name shown on the dashboard; the run folder's name stands in without it.
     """
     client = connect(address)
     url = dashboard_url(address)
@@ -138,7 +166,7 @@ def submit_run(
     with tempfile.TemporaryDirectory(prefix="motionaug-submit-") as folder:
         (Path(folder) / CONFIG_NAME).write_text(json.dumps(shipped_config(config), indent=1), encoding="utf-8")
         env = {**(runtime_env or {}), "working_dir": folder}
-        metadata = {"run_id": run_id, "run_dir": str(config.output), "tool": "motionaug"}
+        metadata = job_metadata(config, name)
         with _cluster_errors(url):
             try:
                 client.submit_job(entrypoint=command, submission_id=job_id, runtime_env=env, metadata=metadata)
@@ -146,7 +174,14 @@ def submit_run(
                 if "already exists" in str(err):
                     raise MotionDataError(job_id, f"run {run_id} was already submitted as job {job_id}") from None
                 raise MotionDataError(job_id, f"submission failed: {str(err).splitlines()[0]}") from None
-    return SubmittedJob(job_id=job_id, run_id=run_id, run_dir=config.output, dashboard_url=url, entrypoint=command)
+    return SubmittedJob(
+        job_id=job_id,
+        run_id=run_id,
+        run_dir=config.output,
+        dashboard_url=url,
+        entrypoint=command,
+        name=metadata["job_name"],
+    )
 
 
 def next_attempt(client: JobSubmissionClient, url: str, run_id: str, retry: bool) -> str:
@@ -189,6 +224,7 @@ def _state(client: JobSubmissionClient, url: str, job: str) -> JobState:
         message=info.message or "",
         entrypoint=info.entrypoint or "",
         run_dir=Path(run_dir) if run_dir else None,
+        name=(info.metadata or {}).get("job_name", ""),
     )
 
 

@@ -173,14 +173,17 @@ def _prepare(
     inpaint: InpaintSpec | None,
     generator: torch.Generator | None,
     dtype: torch.dtype,
-    device: torch.device | str,
+    device: torch.device | str | None,
 ) -> tuple[NoiseSchedule, Tensor, int, tuple[Tensor, Tensor] | None]:
     """Respaced schedule, the initial x, the number of steps to run, and the inpainting (mask, reference).
 
     Initial x: pure noise, or ``q_sample(x_start)`` at index ``start_step - 1``; inpainted entries get no noise,
-    so they start on the zero-noise q-path ``sqrt(alpha_bar) * reference``.
+    so they start on the zero-noise q-path ``sqrt(alpha_bar) * reference``. ``device`` None: ``x_start``'s, else
+    CPU. Noise is drawn on CPU from ``generator`` and moved, so a seed gives the same noise on every device.
     """
     sched, shape = _respaced(schedule, steps), torch.Size(shape)
+    if device is None:
+        device = x_start.device if x_start is not None else torch.device("cpu")
     inpaint_t = _inpaint_tensors(inpaint, shape, dtype, device)
     n_run = len(sched) if start_step is None else int(start_step)
     if not 1 <= n_run <= len(sched):
@@ -241,7 +244,7 @@ def ddpm_sample(
     progress: ProgressFn | None = None,
     generator: torch.Generator | None = None,
     dtype: torch.dtype = torch.float32,
-    device: torch.device | str = "cpu",
+    device: torch.device | str | None = None,
 ) -> Tensor:
     """DDPM ancestral sampling (fixed-small variance), all 1000 steps unless ``steps`` respaces. Returns (B, T, D)."""
     sched, x, n_run, inpaint_t = _prepare(
@@ -271,7 +274,7 @@ def ddim_sample(
     progress: ProgressFn | None = None,
     generator: torch.Generator | None = None,
     dtype: torch.dtype = torch.float32,
-    device: torch.device | str = "cpu",
+    device: torch.device | str | None = None,
 ) -> Tensor:
     """DDIM sampling over ``steps`` respaced timesteps (eta=0: deterministic given the initial noise).
 

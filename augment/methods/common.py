@@ -3,7 +3,8 @@
 Method-agnostic helpers, each working in the normalised feature space of the base models
 (``BaseModels.normalizer``) where it touches motions:
 
-- threads: ``configure_threads`` applies the count the workflow exported to a worker;
+- threads and devices: ``configure_threads`` applies the count the workflow exported to a worker;
+  ``place_models`` moves the base models to the device a method picked, ``module_device`` says where a network is;
 - randomness: ``seeded_generator`` takes any integer seed, ``clip_noise`` draws a clip's noise from its id, so a
   clip's output does not depend on its batch mates;
 - batches: ``MotionBatch`` pads and normalises motions, and says which channels to inpaint from a reference;
@@ -80,8 +81,27 @@ def configure_threads() -> int:
     return torch.get_num_threads()
 
 
+def module_device(module: nn.Module) -> torch.device:
+    """Where ``module``'s weights live (CPU for a module without any): tensors it reads are made there."""
+    for tensor in module.parameters():
+        return tensor.device
+    for tensor in module.buffers():
+        return tensor.device
+    return torch.device("cpu")
+
+
+def place_models(base: BaseModels, device: torch.device) -> BaseModels:
+    """Move every network of ``base`` to ``device`` (the text encoder stays put: its embeddings are moved)."""
+    for module in base.modules().values():
+        module.to(device)
+    return base
+
+
 def seeded_generator(seed: int) -> torch.Generator:
-    """A generator for any integer seed: the workflow derives 64-bit seeds, torch takes them below 2**63."""
+    """A CPU generator for any integer seed: the workflow derives 64-bit seeds, torch takes them below 2**63.
+
+    Noise is drawn on CPU and then moved, so a seed gives the same noise on every device.
+    """
     return torch.Generator().manual_seed(seed % (1 << 63))
 
 
@@ -111,6 +131,10 @@ class MotionBatch:
         arrays = [np.asarray(m, dtype=np.float32) for m in motions]
         x, mask = pad_batch([a if base is None else base.normalizer.normalize(a) for a in arrays])
         return cls(x, mask, [int(a.shape[0]) for a in arrays])
+
+    def to(self, device: torch.device) -> MotionBatch:
+        """The same batch on ``device`` (itself when already there)."""
+        return MotionBatch(self.x.to(device), self.mask.to(device), self.lengths)
 
     def inpaint(self, channels: Sequence[int], reference: Tensor | None = None) -> InpaintSpec:
         """Keep ``channels`` of ``reference`` (default: these motions) on the real frames."""
@@ -296,13 +320,13 @@ def output_scores(
     base: BaseModels, out: Tensor, mask: Tensor, style_embed: Tensor, clips: Sequence[MotionClip]
 ) -> list[dict[str, float]]:
     """Per clip of a transferred batch ``out`` (B, T, D, normalised): cosine to its revised caption's embedding
-    (style), to its original caption (content), and its foot skating."""
+    (style), to its original caption (content), and its foot skating. Encodes on ``out``'s device, the rest on CPU."""
     originals = [caption_text(c) for c in clips]
     with torch.no_grad():
         feats = base.motion_encoder(out, mask)
-        style = cosine_similarity(feats, style_embed).tolist()
-        content = cosine_similarity(feats, base.text_encoder.encode(originals)).tolist()
-    joints = features_to_joints(out, T2M, base.normalizer.mean, base.normalizer.std)
+        style = cosine_similarity(feats, style_embed.to(feats.device)).tolist()
+        content = cosine_similarity(feats, base.text_encoder.encode(originals).to(feats.device)).tolist()
+    joints = features_to_joints(out.cpu(), T2M, base.normalizer.mean, base.normalizer.std)
     lengths = mask.sum(dim=1).tolist()
     skate = [foot_skating_ratio(joints[i, :n].numpy(), T2M, c.fps) for i, (c, n) in enumerate(zip(clips, lengths))]
     return [{"style_score": s, "content_score": c, "foot_skating": f} for s, c, f in zip(style, content, skate)]
@@ -311,7 +335,7 @@ def output_scores(
 def output_motion(base: BaseModels, out: Tensor, reference: np.ndarray, channels: Sequence[int]) -> np.ndarray:
     """One transferred clip (T, D, normalised) as float32 features, ``channels`` copied from ``reference`` exactly
     (not just up to normalise/denormalise rounding)."""
-    motion = base.normalizer.denormalize(out.numpy()).astype(np.float32)
+    motion = base.normalizer.denormalize(out.cpu().numpy()).astype(np.float32)
     motion[:, channels] = reference[:, channels]
     return motion
 

@@ -8,6 +8,8 @@ Layout of a base-models folder (written by ``augment.training.pretrain``)::
     content_classifier.safetensors evaluator: what is done
     style_classifier.safetensors   evaluator: how it is done
     Mean.npy, Std.npy              the feature normalisation the models were trained with
+    text_encoder.safetensors       CLIP text tower, when ``text_encoder`` is "clip" (an imported MDM prior)
+    bpe_simple_vocab_16e6.txt.gz   its tokenizer vocabulary
 
 Weights are safetensors only: loading never unpickles.
 """
@@ -25,10 +27,11 @@ from torch import nn
 
 from motionaug.augment.io import atomic_path, atomic_write_text, read_json_model
 from motionaug.augment.motion.features import Normalizer
+from motionaug.models.clip_text import VOCAB_FILE
 from motionaug.models.evaluators import ClassifierConfig, MotionClassifier
 from motionaug.models.mdm import MDM, MDMConfig
 from motionaug.models.motion_encoder import MotionEncoder, MotionEncoderConfig
-from motionaug.models.text_encoder import TextEncoder, make_text_encoder
+from motionaug.models.text_encoder import ClipTextEncoder, TextEncoder, make_text_encoder
 from motionaug.schemas.errors import MotionDataError
 
 BASE_JSON = "base.json"
@@ -36,6 +39,7 @@ PRIOR = "prior"
 MOTION_ENCODER = "motion_encoder"
 CONTENT_CLASSIFIER = "content_classifier"
 STYLE_CLASSIFIER = "style_classifier"
+TEXT_ENCODER = "text_encoder"
 
 
 class BaseModelsInfo(BaseModel):
@@ -46,6 +50,9 @@ class BaseModelsInfo(BaseModel):
     version: int = 1
     size: str
     text_encoder: str = "minilm"
+    text_encoder_options: dict[str, Any] = Field(
+        default_factory=dict, description="ClipTextEncoder options, e.g. MDM's raw features and 20-token captions."
+    )
     fps: float = 20.0
     max_frames: int = Field(gt=0, description="Longest clip the prior was trained on.")
     prior: dict[str, Any]
@@ -58,6 +65,8 @@ class BaseModelsInfo(BaseModel):
     config_hash: str = Field(default="", description="Hash of the PretrainConfig that made these weights.")
     pretrain_config: dict[str, Any] = Field(default_factory=dict, description="The PretrainConfig, for the record.")
     metrics: dict[str, float] = Field(default_factory=dict, description="Held-out figures measured at pretraining.")
+    source: dict[str, Any] = Field(default_factory=dict, description="Where the prior came from, when imported.")
+    notes: list[str] = Field(default_factory=list, description="What a user should know about these models.")
 
 
 @dataclass
@@ -71,12 +80,23 @@ class BaseModels:
     content_classifier: MotionClassifier | None = None
     style_classifier: MotionClassifier | None = None
     _text_encoder: TextEncoder | None = None
+    folder: Path | None = None
 
     @property
     def text_encoder(self) -> TextEncoder:
         if self._text_encoder is None:
-            self._text_encoder = make_text_encoder(self.info.text_encoder)
+            self._text_encoder = self._build_text_encoder()
         return self._text_encoder
+
+    def _build_text_encoder(self) -> TextEncoder:
+        """MiniLM from its package; CLIP from the folder's own copy (the folder is self-contained on any node)."""
+        if self.info.text_encoder != "clip":
+            return make_text_encoder(self.info.text_encoder)
+        if self.folder is None:
+            raise MotionDataError("base models", "a CLIP text encoder is read from the base-models folder; none given")
+        return ClipTextEncoder(
+            self.folder / f"{TEXT_ENCODER}.safetensors", self.folder / VOCAB_FILE, **self.info.text_encoder_options
+        )
 
     def eval(self) -> BaseModels:
         for module in self.modules().values():
@@ -122,6 +142,7 @@ class BaseModels:
             content_classifier=classifiers.get(CONTENT_CLASSIFIER),
             style_classifier=classifiers.get(STYLE_CLASSIFIER),
             _text_encoder=text_encoder,
+            folder=folder,
         ).eval()
 
 

@@ -111,7 +111,7 @@ def load_checkpoint(root: Path, stage: str, config_hash: str, modules: dict[str,
     if not state_path.is_file():
         raise MotionDataError(str(state_path), "checkpoint state is missing")
     try:
-        state = torch.load(state_path, weights_only=True)
+        state = torch.load(state_path, weights_only=True, map_location="cpu")
     except Exception as err:  # torch raises several types for corrupt or unsafe files
         raise MotionDataError(str(state_path), f"unreadable checkpoint state ({err})") from None
     return Resumed(record, state)

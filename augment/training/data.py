@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -62,6 +62,10 @@ class Batch:
     style: Tensor
     index: Tensor  # (B,) rows of the MotionSet
 
+    def to(self, device: torch.device) -> Batch:
+        """The batch on ``device`` (itself when already there): drawn on CPU, trained on where the model is."""
+        return Batch(*(getattr(self, f.name).to(device) for f in fields(self)))
+
 
 def split_ids(corpus_dir: str | Path, split: str) -> list[str]:
     """Ids of ``train`` or ``test`` (or any split file). Without train/test files, a stable hash split of all ids."""
@@ -108,7 +112,10 @@ def build_motion_set(
     content_labels: Sequence[str] | None = None,
     style_labels: Sequence[str] | None = None,
 ) -> MotionSet:
-    """Normalise every clip and embed each distinct caption once (no encoder: empty (0, 0) embeddings)."""
+    """Normalise every clip and embed each distinct caption once (no encoder: empty (0, 0) embeddings).
+
+    The set stays in CPU memory whatever device the text encoder runs on; batches move to the model's device.
+    """
     if not clips:
         raise MotionDataError("training data", "no clips in the split")
     where: dict[str, int] = {}
@@ -118,7 +125,7 @@ def build_motion_set(
             raise MotionDataError(clip.source or clip.id, "clip has no captions")
         captions.append([where.setdefault(c.text, len(where)) for c in clip.captions])
     texts = list(where)
-    embed = text_encoder.encode(texts).float() if text_encoder is not None else torch.zeros(len(texts), 0)
+    embed = text_encoder.encode(texts).float().cpu() if text_encoder is not None else torch.zeros(len(texts), 0)
     if content_labels is None or style_labels is None:
         content_labels, style_labels = label_lists(clips)
     motions = [torch.from_numpy(np.ascontiguousarray(normalizer.normalize(c.motion), dtype=np.float32)) for c in clips]

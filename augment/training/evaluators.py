@@ -7,7 +7,9 @@ such as Style-ERD's perceptual-loss network, is a different network). Layout: ``
 (``EvaluatorsInfo``) beside ``content_classifier.safetensors`` and ``style_classifier.safetensors``.
 
 Data is either one tuple of tensors ``(joints (N, T, J, 3), mask (N, T), labels (N,))``, shuffled into
-mini-batches here, or any iterable of such batches (e.g. a ``DataLoader``) re-iterated every epoch.
+mini-batches here, or any iterable of such batches (e.g. a ``DataLoader``) re-iterated every epoch. Data may stay
+on CPU: each batch moves to the model's device, and shuffling draws from a CPU generator, so a seed picks the same
+batches on every device.
 """
 
 from __future__ import annotations
@@ -40,16 +42,28 @@ def _check_tensors(data: Batch) -> Batch:
     return joints, mask.bool(), labels.long()
 
 
-def _batches(data: Batch | Iterable[Batch], batch_size: int, generator: torch.Generator) -> Iterator[Batch]:
+def model_device(model: torch.nn.Module) -> torch.device:
+    """Where ``model``'s weights are (CPU for a model without any)."""
+    return next((p.device for p in model.parameters()), torch.device("cpu"))
+
+
+def _on(batch: Batch, device: torch.device) -> Batch:
+    joints, mask, labels = batch
+    return joints.to(device), mask.to(device), labels.to(device)
+
+
+def _batches(
+    data: Batch | Iterable[Batch], batch_size: int, generator: torch.Generator, device: torch.device
+) -> Iterator[Batch]:
     if isinstance(data, tuple):
         joints, mask, labels = _check_tensors(data)
-        order = torch.randperm(joints.shape[0], generator=generator)
+        order = torch.randperm(joints.shape[0], generator=generator)  # CPU generator: the same order on any device
         for start in range(0, joints.shape[0], batch_size):
-            idx = order[start : start + batch_size]
-            yield joints[idx], mask[idx], labels[idx]
+            idx = order[start : start + batch_size].to(joints.device)
+            yield _on((joints[idx], mask[idx], labels[idx]), device)
     else:
         for batch in data:
-            yield _check_tensors(tuple(batch))  # type: ignore[arg-type]
+            yield _on(_check_tensors(tuple(batch)), device)  # type: ignore[arg-type]
 
 
 def fit_classifier(
@@ -64,7 +78,8 @@ def fit_classifier(
 ) -> list[float]:
     """Adam on cross-entropy; returns the mean training loss of each epoch. Leaves the model in eval mode.
 
-    ``standardize`` first sets the model's input statistics from the training data (one extra pass).
+    Trains where the model is. ``standardize`` first sets the model's input statistics from the training data
+    (one extra pass).
     """
     if epochs < 1:
         raise MotionDataError("fit_classifier", f"epochs must be >= 1, got {epochs}")
@@ -76,7 +91,7 @@ def fit_classifier(
     model.train()
     for _ in range(epochs):
         total, count = 0.0, 0
-        for joints, mask, labels in _batches(data, batch_size, generator):
+        for joints, mask, labels in _batches(data, batch_size, generator, model_device(model)):
             loss = F.cross_entropy(model(joints, mask), labels)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
@@ -98,7 +113,8 @@ def _set_input_stats(model: MotionClassifier, data: Batch | Iterable[Batch]) -> 
         t_max = max(b[0].shape[1] for b in batches)
         joints = torch.cat([F.pad(b[0], (0, 0, 0, 0, 0, t_max - b[0].shape[1])) for b in batches])
         mask = torch.cat([F.pad(b[1], (0, t_max - b[1].shape[1])) for b in batches])
-    model.set_input_stats(joints, mask)
+    device = model_device(model)
+    model.set_input_stats(joints.to(device), mask.to(device))
 
 
 @torch.no_grad()
@@ -106,7 +122,11 @@ def _run(model: MotionClassifier, joints: torch.Tensor, mask: torch.Tensor, batc
     was_training = model.training
     model.eval()
     fn = model.features if what == "features" else model
-    outputs = [fn(joints[i : i + batch_size], mask[i : i + batch_size]) for i in range(0, joints.shape[0], batch_size)]
+    device = model_device(model)
+    outputs = [
+        fn(joints[i : i + batch_size].to(device), mask[i : i + batch_size].to(device)).cpu()
+        for i in range(0, joints.shape[0], batch_size)
+    ]
     model.train(was_training)
     return torch.cat(outputs)
 
@@ -114,14 +134,14 @@ def _run(model: MotionClassifier, joints: torch.Tensor, mask: torch.Tensor, batc
 def classifier_logits(
     model: MotionClassifier, joints: torch.Tensor, mask: torch.Tensor, batch_size: int = 64
 ) -> torch.Tensor:
-    """Logits ``(N, C)`` in eval mode, batched."""
+    """Logits ``(N, C)`` on CPU, in eval mode, batched on the model's device."""
     return _run(model, joints, mask.bool(), batch_size, "logits")
 
 
 def classifier_features(
     model: MotionClassifier, joints: torch.Tensor, mask: torch.Tensor, batch_size: int = 64
 ) -> torch.Tensor:
-    """Pooled penultimate features ``(N, F)`` in eval mode: the input of FMD."""
+    """Pooled penultimate features ``(N, F)`` on CPU, in eval mode: the input of FMD."""
     return _run(model, joints, mask.bool(), batch_size, "features")
 
 

@@ -3,14 +3,17 @@
 Three stages, in order, each checkpointed and resumable (``augment.training.checkpoints``):
 
 a. ``prior``: MDM predicting x0, masked MSE plus MDM's geometric losses, classifier-free condition dropout
-   (inside MDM), AdamW with warm-up and cosine decay, bf16 autocast for the network on CPUs with bf16 units.
+   (inside MDM), AdamW with warm-up and cosine decay, bf16 autocast for the network on CUDA and on CPUs with
+   bf16 units.
 b. ``motion_encoder``: reads motions through the prior's (frozen) input layer and learns to land on the
    caption embedding (semantic loss, Hu et al. 2024 sec. 3.4.1).
 c. ``evaluators``: content and style classifiers on joint positions, with held-out accuracy.
 
 Every random draw comes from seeded generators whose states are checkpointed, so a run stopped and
-resumed ends with the same weights as one that never stopped. The result is a ``BaseModels`` folder;
-``ensure_base_models`` reuses one whose corpus fingerprint and config hash match.
+resumed ends with the same weights as one that never stopped. The device (``pick_device``: CUDA when present)
+is chosen once per run; data, draws and initial weights are made on CPU and moved there, so a seed means the
+same batches, noise and initialisation on every device. The result is a ``BaseModels`` folder (weights saved
+from CPU); ``ensure_base_models`` reuses one whose corpus fingerprint and config hash match.
 """
 
 from __future__ import annotations
@@ -23,16 +26,17 @@ import os
 import shutil
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Literal
 
 import torch
+import torch.distributed as dist
 from pydantic import BaseModel, ConfigDict, Field
 from torch import Tensor, nn
 
 from motionaug.augment.corpus.humanml3d import HumanML3DReader
-from motionaug.augment.device import bf16_autocast
+from motionaug.augment.device import bf16_autocast, pick_device
 from motionaug.augment.diffusion import NoiseSchedule, masked_mse, q_sample, sample_timesteps
 from motionaug.augment.eval.inputs import features_to_joints, pad_batch
 from motionaug.augment.eval.metrics import retrieval_r_at_k
@@ -43,6 +47,7 @@ from motionaug.augment.training.checkpoints import (
     load_checkpoint,
     read_record,
     save_checkpoint,
+    stage_dir,
     step_folder,
 )
 from motionaug.augment.training.data import (
@@ -70,9 +75,12 @@ from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.skeleton import BUILTIN_SKELETONS, Skeleton
 
 ProgressFn = Callable[[str, int, int, dict[str, float]], None]
+CPU = torch.device("cpu")
 STAGES = ("prior", "motion_encoder", "evaluators")
 CHECKPOINTS = "checkpoints"
 LOSS_LOG = "loss_log.jsonl"
+TRAINING_RECORDS = frozenset({CHECKPOINTS, LOSS_LOG})
+"""Files of a base-models folder that record how training went (wall-clock times), not what was trained."""
 RETRIEVAL_POOL = 32
 
 LOG = logging.getLogger(__name__)
@@ -115,8 +123,13 @@ class PretrainConfig(BaseModel):
     prior_latent_dim: int | None = Field(None, ge=8, description="Prior width; None = the size's MDM preset.")
     prior_ff_size: int | None = Field(None, ge=8, description="Prior feed-forward width; None = the size's preset.")
     prior_layers: int | None = Field(None, ge=1, description="Prior transformer layers; None = the size's preset.")
-    bf16: bool | None = Field(None, description="bf16 autocast on CPU; None = when the CPU has bf16 units.")
+    bf16: bool | None = Field(None, description="bf16 autocast; None = on CUDA and on CPUs with bf16 units.")
     text_encoder: str = "minilm"
+    from_mdm: str | None = Field(
+        None, description="Official MDM checkpoint to use as the prior (augment.training.from_mdm); None: train one."
+    )
+    clip_weights: str | None = Field(None, description="CLIP ViT-B/32 weights for from_mdm; None: found locally.")
+    mdm_stats: str | None = Field(None, description="Folder with the prior's Mean/Std.npy; None: beside it or corpus.")
     threads: int | None = Field(None, ge=1)
     checkpoint_every: int = Field(500, ge=1)
     log_every: int = Field(10, ge=1)
@@ -156,8 +169,9 @@ class PretrainConfig(BaseModel):
         return cls(size=size, **{**presets[size], **overrides})
 
     def config_hash(self) -> str:
-        """Hash of every field that changes the trained weights."""
-        relevant = self.model_dump(exclude={"threads", "checkpoint_every", "log_every"})
+        """Hash of every field that changes the trained weights (the MDM files count by content, in the fingerprint)."""
+        ignored = {"threads", "checkpoint_every", "log_every", "from_mdm", "clip_weights", "mdm_stats"}
+        relevant = self.model_dump(exclude=ignored)
         return hashlib.sha256(json.dumps(relevant, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -193,9 +207,58 @@ def skeleton_for(feature_dim: int) -> Skeleton:
 # ---- run context ----------------------------------------------------------------------------
 
 
+ReportFn = Callable[[dict[str, float], Path | None], None]
+
+
+@dataclass(frozen=True)
+class Parallel:
+    """This process's place in a data-parallel run (``torch.distributed`` already initialised when ``world`` > 1).
+
+    Every process draws the same global batch from the same seeded generator and trains on its ``part`` of it;
+    DDP averages the gradients, so N processes take the steps one process takes with the same global batch.
+    Only the lead process writes files; ``report`` (when set) is called on every process after each checkpoint.
+    """
+
+    rank: int = 0
+    world: int = 1
+    report: ReportFn | None = None
+
+    @property
+    def lead(self) -> bool:
+        return self.rank == 0
+
+    def part(self, batch_size: int) -> slice:
+        """This process's contiguous, equal share of a global batch."""
+        if batch_size % self.world:
+            reason = f"batch_size {batch_size} does not split evenly over {self.world} workers"
+            raise MotionDataError("pretrain", reason)
+        size = batch_size // self.world
+        return slice(self.rank * size, (self.rank + 1) * size)
+
+    def wrap(self, module: nn.Module) -> nn.Module:
+        """DDP around ``module`` in a parallel run (gradients averaged over processes), else ``module`` itself."""
+        if self.world == 1:
+            return module
+        device = next(module.parameters()).device
+        ids = [device] if device.type == "cuda" else None
+        return nn.parallel.DistributedDataParallel(module, device_ids=ids)
+
+    def mean(self, values: dict[str, float]) -> dict[str, float]:
+        """Each value averaged over processes: shard means of equal shards average to the global batch's."""
+        if self.world == 1:
+            return values
+        device = torch.device("cuda", torch.cuda.current_device()) if dist.get_backend() == "nccl" else None
+        packed = torch.tensor(list(values.values()), dtype=torch.float64, device=device)
+        dist.all_reduce(packed)
+        return dict(zip(values, (packed / self.world).tolist(), strict=True))
+
+
+SINGLE = Parallel()
+
+
 @dataclass
 class Run:
-    """What every stage needs: config, data, output places, the progress hook."""
+    """What every stage needs: config, data (in CPU memory), output places, the progress hook, the device."""
 
     config: PretrainConfig
     out_dir: Path
@@ -206,12 +269,20 @@ class Run:
     run_hash: str
     progress: ProgressFn | None
     metrics: dict[str, float] = field(default_factory=dict)
+    parallel: Parallel = SINGLE
+    device: torch.device = CPU
 
     @property
     def checkpoints(self) -> Path:
         return self.out_dir / CHECKPOINTS
 
+    def local(self, batch: Batch) -> Batch:
+        """This process's part of a global batch, on the run's device."""
+        return take(batch, self.parallel.part(batch.motion.shape[0])).to(self.device)
+
     def log(self, stage: str, step: int, values: dict[str, float]) -> None:
+        if not self.parallel.lead:
+            return
         line = json.dumps({"stage": stage, "step": step, **{k: round(v, 6) for k, v in values.items()}})
         with open(self.out_dir / LOSS_LOG, "a", encoding="utf-8") as handle:
             handle.write(line + "\n")
@@ -259,24 +330,44 @@ class LoopState:
     generator: torch.Generator = field(default_factory=torch.Generator)
 
 
-def _rng_state(loop: LoopState, optimizer: torch.optim.Optimizer) -> dict[str, Any]:
-    return {
-        "optimizer": optimizer.state_dict(),
+def _on_cpu(value: Any) -> Any:
+    """``value`` with every tensor in it on CPU: a checkpoint written on a GPU resumes on any device."""
+    if isinstance(value, Tensor):
+        return value.cpu()
+    if isinstance(value, dict):
+        return {k: _on_cpu(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return type(value)(_on_cpu(v) for v in value)
+    return value
+
+
+def _rng_state(loop: LoopState, optimizer: torch.optim.Optimizer, device: torch.device) -> dict[str, Any]:
+    """Optimizer and RNG states; with CUDA also its RNG (dropout draws there), else exactly the CPU run's state."""
+    state = {
+        "optimizer": _on_cpu(optimizer.state_dict()),
         "generator": loop.generator.get_state(),
         "torch_rng": torch.get_rng_state(),
     }
+    if device.type == "cuda":
+        state["cuda_rng"] = torch.cuda.get_rng_state(device)
+    return state
 
 
 def _resume(
     run: Run, stage: str, modules: dict[str, nn.Module], optimizer: torch.optim.Optimizer, loop: LoopState
 ) -> bool:
-    """Restore weights, optimizer and RNGs from the stage's checkpoint; True when the stage had finished."""
+    """Restore weights, optimizer and RNGs from the stage's checkpoint; True when the stage had finished.
+
+    Weights load into ``modules`` where they are; the optimizer moves its (CPU-saved) state to its parameters.
+    """
     resumed = load_checkpoint(run.checkpoints, stage, run.run_hash, modules)
     if resumed is None:
         return False
     optimizer.load_state_dict(resumed.state["optimizer"])
     loop.generator.set_state(resumed.state["generator"])
     torch.set_rng_state(resumed.state["torch_rng"])
+    if run.device.type == "cuda" and "cuda_rng" in resumed.state:
+        torch.cuda.set_rng_state(resumed.state["cuda_rng"], run.device)
     loop.step, loop.elapsed = resumed.record.step, resumed.record.metrics.get("elapsed_s", 0.0)
     run.metrics.update({k: v for k, v in resumed.record.metrics.items() if k != "elapsed_s"})
     return resumed.record.done
@@ -301,7 +392,11 @@ def _checkpoint(
         folder=step_folder(loop.step),
         metrics={"elapsed_s": loop.elapsed, **(metrics or {})},
     )
-    save_checkpoint(run.checkpoints, record, modules, state)
+    if run.parallel.lead:
+        save_checkpoint(run.checkpoints, record, modules, state)
+    if run.parallel.report is not None:
+        folder = stage_dir(run.checkpoints, stage) / record.folder if run.parallel.lead else None
+        run.parallel.report({"step": float(loop.step), **record.metrics, **(metrics or {})}, folder)
 
 
 def _train_loop(
@@ -309,13 +404,15 @@ def _train_loop(
     stage: str,
     modules: dict[str, nn.Module],
     optimizer: torch.optim.Optimizer,
-    loss_fn: Callable[[Batch, torch.Generator], tuple[Tensor, dict[str, float]]],
+    loss_fn: Callable[[Batch, torch.Generator], tuple[Tensor, dict[str, float]]],  # global CPU batch in, part's loss
     settings: tuple[int, float],
     finish: Callable[[], dict[str, float]],
 ) -> None:
     """Run ``loss_fn`` for ``total`` steps with checkpoints; resumes where it stopped.
 
     The length is a step count, never a time: the same config and seed give the same weights on a busy machine.
+    Every process of a data-parallel run draws the same global batch (on CPU); ``loss_fn`` moves its own part
+    (``run.local``) to the device.
     """
     total, base_lr = settings
     loop = LoopState(generator=torch.Generator().manual_seed(run.config.seed * 1000 + STAGES.index(stage) + 1))
@@ -338,17 +435,17 @@ def _train_loop(
         loop.step += 1
         loop.elapsed += time.perf_counter() - started
         loop.cpu += time.process_time() - cpu_started
-        values = {"loss": float(loss.detach()), **parts, "lr": lr}
+        values = {**run.parallel.mean({"loss": float(loss.detach()), **parts}), "lr": lr}
         if loop.step % run.config.log_every == 0 or loop.step == 1:
             run.log(stage, loop.step, {**values, "elapsed_s": loop.elapsed, "cpu_s": loop.cpu})
         if loop.step % run.config.checkpoint_every == 0:
-            _checkpoint(run, stage, total, False, modules, _rng_state(loop, optimizer), loop)
+            _checkpoint(run, stage, total, False, modules, _rng_state(loop, optimizer, run.device), loop)
         run.report(stage, loop.step, total, values)
     for module in modules.values():
         module.eval()
     final = finish()
     run.metrics.update(final)
-    _checkpoint(run, stage, total, True, modules, _rng_state(loop, optimizer), loop, final)
+    _checkpoint(run, stage, total, True, modules, _rng_state(loop, optimizer, run.device), loop, final)
     run.log(stage, loop.step, {**final, "elapsed_s": loop.elapsed, "done": 1.0})
 
 
@@ -356,6 +453,7 @@ def _train_loop(
 
 
 def build_prior(config: PretrainConfig, n_feats: int, text_dim: int) -> MDM:
+    """The seeded prior, initialised on CPU (the same weights whichever device it then trains on)."""
     torch.manual_seed(config.seed)
     overrides = {
         name: value
@@ -369,26 +467,57 @@ def build_prior(config: PretrainConfig, n_feats: int, text_dim: int) -> MDM:
     return MDM(MDMConfig.named(config.size, n_feats=n_feats, text_dim=text_dim, dropout=config.dropout, **overrides))
 
 
+def take(batch: Batch, part: slice) -> Batch:
+    """Rows ``part`` of every field of a batch."""
+    return Batch(*(getattr(batch, f.name)[part] for f in fields(batch)))
+
+
+def cond_drop(prior: MDM, batch_size: int) -> Tensor:
+    """MDM's classifier-free condition dropout mask (B,), drawn here for the whole global batch.
+
+    The same draw MDM makes inside ``forward`` in training (global RNG, same shape), so one process trains as
+    before, and each process of a data-parallel run keeps its part of the one mask.
+    """
+    if not prior.training or prior.config.cond_mask_prob <= 0:
+        return torch.zeros(batch_size, dtype=torch.bool)
+    return (torch.rand(batch_size, 1) < prior.config.cond_mask_prob).view(-1)
+
+
 def prior_loss(
-    prior: MDM, schedule: NoiseSchedule, batch: Batch, run: Run, generator: torch.Generator
+    prior: MDM,
+    schedule: NoiseSchedule,
+    batch: Batch,
+    run: Run,
+    generator: torch.Generator,
+    net: nn.Module | None = None,
 ) -> tuple[Tensor, dict[str, float]]:
-    """x0 masked MSE on normalised features plus weighted geometric losses on de-normalised ones (fp32)."""
-    x0, mask = batch.motion, batch.mask
-    t = sample_timesteps(x0.shape[0], schedule, generator)
-    noise = torch.randn(x0.shape, generator=generator)
+    """x0 masked MSE on normalised features plus weighted geometric losses on de-normalised ones (fp32).
+
+    Every draw is for the global batch, on CPU, then cut to this process's part and moved to the device;
+    ``net`` is ``prior`` or its DDP wrapper.
+    """
+    b = batch.motion.shape[0]
+    t = sample_timesteps(b, schedule, generator)
+    noise = torch.randn(batch.motion.shape, generator=generator)
     if run.config.input_perturbation > 0:  # the target stays x0: only the input is off the training manifold
-        noise = noise + run.config.input_perturbation * torch.randn(x0.shape, generator=generator)
+        noise = noise + run.config.input_perturbation * torch.randn(batch.motion.shape, generator=generator)
+    drop = cond_drop(prior, b)
+    part = run.parallel.part(b)
+    batch, t = run.local(batch), t[part]  # t stays on CPU, beside the schedule's tables it indexes
+    noise, drop = noise[part].to(run.device), drop[part].to(run.device)
+    x0, mask = batch.motion, batch.mask
     x_t = q_sample(schedule, x0, t, noise)
-    with bf16_autocast(run.config.bf16):
-        x0_hat = prior(x_t, schedule.timesteps[t], batch.text_embed, mask)
+    with bf16_autocast(run.config.bf16, run.device):
+        steps = schedule.timesteps[t].to(run.device)
+        x0_hat = (net or prior)(x_t, steps, batch.text_embed, mask, force_uncond=drop)
     x0_hat = x0_hat.float()
     mse = masked_mse(x0_hat, x0, mask).mean()
     cfg = run.config
     parts = {"mse": float(mse.detach())}
     loss = mse
     if cfg.lambda_pos or cfg.lambda_vel or cfg.lambda_foot:
-        mean = torch.from_numpy(run.normalizer.mean)
-        std = torch.from_numpy(run.normalizer.std)
+        mean = torch.from_numpy(run.normalizer.mean).to(run.device)
+        std = torch.from_numpy(run.normalizer.std).to(run.device)
         geo = geometric_losses(x0_hat * std + mean, x0 * std + mean, mask, run.skeleton)
         for name, weight in (("pos", cfg.lambda_pos), ("vel", cfg.lambda_vel), ("foot", cfg.lambda_foot)):
             term = geo[name].mean()
@@ -404,9 +533,12 @@ def held_out_prior_mse(prior: MDM, schedule: NoiseSchedule, run: Run, seed: int 
     total, count = 0.0, 0
     for batch in iter_batches(run.test, run.config.batch_size, run.config.max_frames):
         t = sample_timesteps(batch.motion.shape[0], schedule, generator)
-        x_t = q_sample(schedule, batch.motion, t, torch.randn(batch.motion.shape, generator=generator))
-        with bf16_autocast(run.config.bf16):
-            x0_hat = prior(x_t, schedule.timesteps[t], batch.text_embed, batch.mask, force_uncond=False).float()
+        noise = torch.randn(batch.motion.shape, generator=generator).to(run.device)
+        batch = batch.to(run.device)
+        x_t = q_sample(schedule, batch.motion, t, noise)
+        with bf16_autocast(run.config.bf16, run.device):
+            steps = schedule.timesteps[t].to(run.device)
+            x0_hat = prior(x_t, steps, batch.text_embed, batch.mask, force_uncond=False).float()
         total += float(masked_mse(x0_hat, batch.motion, batch.mask).sum())
         count += batch.motion.shape[0]
     return total / max(count, 1)
@@ -414,15 +546,16 @@ def held_out_prior_mse(prior: MDM, schedule: NoiseSchedule, run: Run, seed: int 
 
 def train_prior(run: Run) -> MDM:
     cfg = run.config
-    prior = build_prior(cfg, run.normalizer.dim, run.train.text_embed.shape[1])
+    prior = build_prior(cfg, run.normalizer.dim, run.train.text_embed.shape[1]).to(run.device)
     schedule = NoiseSchedule.cosine()
     optimizer = torch.optim.AdamW(prior.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    net = run.parallel.wrap(prior)
     _train_loop(
         run,
         "prior",
         {"prior": prior},
         optimizer,
-        lambda batch, gen: prior_loss(prior, schedule, batch, run, gen),
+        lambda batch, gen: prior_loss(prior, schedule, batch, run, gen, net),
         (cfg.prior_steps, cfg.lr),
         lambda: {"prior_test_mse": held_out_prior_mse(prior, schedule, run)},
     )
@@ -433,7 +566,8 @@ def train_prior(run: Run) -> MDM:
 
 
 def build_motion_encoder(config: PretrainConfig, prior: MDM) -> MotionEncoder:
-    """An encoder reading through the prior's input layer (shared module, frozen by the caller)."""
+    """An encoder reading through the prior's input layer (shared module, frozen by the caller), on the prior's
+    device; its own layers are initialised on CPU from the seed first."""
     torch.manual_seed(config.seed + 1)
     enc_config = MotionEncoderConfig.named(
         config.size,
@@ -442,15 +576,17 @@ def build_motion_encoder(config: PretrainConfig, prior: MDM) -> MotionEncoder:
         text_dim=prior.config.text_dim,
         dropout=config.dropout,
     )
-    return MotionEncoder(enc_config, prior.input_process)
+    return MotionEncoder(enc_config, prior.input_process).to(next(prior.parameters()).device)
 
 
 @torch.no_grad()
 def encode_set(encoder: MotionEncoder, data: MotionSet, batch_size: int, max_frames: int) -> tuple[Tensor, Tensor]:
-    """Motion embeddings and first-caption embeddings of every clip, (N, E) each."""
+    """Motion embeddings and first-caption embeddings of every clip, (N, E) each, on CPU (encoded where
+    ``encoder`` is)."""
+    device = next(encoder.parameters()).device
     motions, texts = [], []
     for batch in iter_batches(data, batch_size, max_frames):
-        motions.append(encoder(batch.motion, batch.mask))
+        motions.append(encoder(batch.motion.to(device), batch.mask.to(device)).cpu())
         texts.append(batch.text_embed)
     return torch.cat(motions), torch.cat(texts)
 
@@ -465,15 +601,18 @@ def encoder_metrics(encoder: MotionEncoder, run: Run) -> dict[str, float]:
 
 
 def train_motion_encoder(run: Run, prior: MDM) -> MotionEncoder:
+    """Stage b on ``run.device`` (``prior`` moves there too: the encoder shares its input layer)."""
     cfg = run.config
-    encoder = build_motion_encoder(cfg, prior)
+    encoder = build_motion_encoder(cfg, prior.to(run.device))
     prior.input_process.requires_grad_(False)  # the denoiser's layer is shared, not retrained
     trainable = [p for p in encoder.parameters() if p.requires_grad]
     optimizer = torch.optim.AdamW(trainable, lr=cfg.encoder_lr, weight_decay=cfg.weight_decay)
+    net = run.parallel.wrap(encoder)
 
     def loss_fn(batch: Batch, _: torch.Generator) -> tuple[Tensor, dict[str, float]]:
-        with bf16_autocast(cfg.bf16):
-            motion = encoder(batch.motion, batch.mask)
+        batch = run.local(batch)
+        with bf16_autocast(cfg.bf16, run.device):
+            motion = net(batch.motion, batch.mask)
         return semantic_loss(motion.float(), batch.text_embed), {}
 
     _train_loop(
@@ -507,7 +646,7 @@ def _fit_one(
     if len(labels) < 2 or int(keep.sum()) == 0:
         return None
     torch.manual_seed(run.config.seed + 2 + len(name))
-    model = make_classifier(len(labels), run.skeleton.n_joints, run.config.classifier_size)
+    model = make_classifier(len(labels), run.skeleton.n_joints, run.config.classifier_size).to(run.device)
     stage = f"evaluators_{name}"
     resumed = load_checkpoint(run.checkpoints, stage, run.run_hash, {name: model})
     if resumed is not None:
@@ -573,9 +712,17 @@ def pretrain(
     config: PretrainConfig | None = None,
     progress: ProgressFn | None = None,
     text_encoder: TextEncoder | None = None,
-) -> BaseModelsInfo:
-    """Train all three stages into ``out_dir`` (resuming from its checkpoints) and save the base models there."""
+    parallel: Parallel = SINGLE,
+    device: torch.device | None = None,
+) -> BaseModelsInfo | None:
+    """Train all three stages into ``out_dir`` (resuming from its checkpoints) and save the base models there.
+
+    ``device``: where to train; None = ``pick_device()`` (a Ray Train worker passes its own GPU). In a
+    data-parallel run every process trains the prior and the motion encoder together; then the lead alone
+    trains the small evaluators and saves, and the other processes return None.
+    """
     config = config or PretrainConfig()
+    device = device or pick_device()
     corpus, out = Path(corpus_dir), Path(out_dir)
     fingerprint = corpus_fingerprint(corpus)
     _threads(config)
@@ -586,13 +733,17 @@ def pretrain(
     run = Run(
         config, out, normalizer, skeleton_for(normalizer.dim), train, test, run_hash(config, fingerprint), progress
     )
+    run.parallel, run.device = parallel, device
     prior = train_prior(run)
     motion_encoder = train_motion_encoder(run, prior)
+    if not parallel.lead:
+        return None
+    run.parallel = SINGLE
     classifiers = train_evaluators(run)
     labels = {"content": run.train.content_labels, "style": run.train.style_labels}
     save_evaluators(out / EVALUATORS_DIR, classifiers, labels, fingerprint, run.metrics)
     info = _info(run, prior, motion_encoder, fingerprint)
-    BaseModels(info=info, prior=prior, motion_encoder=motion_encoder, normalizer=normalizer).save(out)
+    BaseModels(info=info, prior=prior.cpu(), motion_encoder=motion_encoder.cpu(), normalizer=normalizer).save(out)
     return info
 
 
@@ -626,6 +777,7 @@ def fit_evaluators(
     normalizer, train, test = _load_data(corpus, None, require_stats=False)
     fingerprint = corpus_fingerprint(corpus)
     run = Run(config, work, normalizer, skeleton_for(normalizer.dim), train, test, run_hash(config, fingerprint), None)
+    run.device = pick_device()
     classifiers = train_evaluators(run)
     labels = {"content": train.content_labels, "style": train.style_labels}
     save_evaluators(work, classifiers, labels, fingerprint, run.metrics)
@@ -651,9 +803,19 @@ def ensure_base_models(
     progress: ProgressFn | None = None,
     config: PretrainConfig | None = None,
     text_encoder: TextEncoder | None = None,
+    runner: Callable[[Path, Path, PretrainConfig], object] | None = None,
 ) -> Path:
-    """``out_dir`` if it already holds matching base models, else pretrain into it (stale checkpoints cleared)."""
+    """``out_dir`` if it already holds matching base models, else pretrain into it (stale checkpoints cleared).
+
+    ``runner(corpus, out, config)`` trains instead of the one-process ``pretrain`` (the Ray Train workflow).
+    """
     config = config or PretrainConfig.for_size(size, seed=seed)
+    if config.from_mdm is not None:  # the official prior: only the motion encoder and evaluators are trained
+        from motionaug.augment.training.from_mdm import ensure_from_mdm, source_of
+
+        if runner is not None:
+            raise MotionDataError("pretrain --workers", "not supported with --from-mdm, which trains in one process")
+        return ensure_from_mdm(corpus_dir, out_dir, source_of(config), config, progress)
     out = Path(out_dir)
     fingerprint = corpus_fingerprint(corpus_dir)
     if _complete(out, fingerprint, config.config_hash()):
@@ -665,5 +827,8 @@ def ensure_base_models(
     if _stale_checkpoints(out, run_hash(config, fingerprint)):  # made from another corpus or config: start over
         shutil.rmtree(out / CHECKPOINTS, ignore_errors=True)
         (out / LOSS_LOG).unlink(missing_ok=True)
+    if runner is not None:
+        runner(Path(corpus_dir), out, config)
+        return out
     pretrain(corpus_dir, out, config, progress, text_encoder)
     return out

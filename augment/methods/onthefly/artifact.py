@@ -60,7 +60,7 @@ def weights_state(model: nn.Module, params: OnTheFlyParams) -> dict[str, Tensor]
         state = {**lora_state_dict(model), **lora_bias_parameters(model, params)}
     else:
         state = model.state_dict()
-    return {k: v.detach().contiguous().clone() for k, v in state.items()}
+    return {k: v.detach().cpu().contiguous().clone() for k, v in state.items()}  # safetensors writes from CPU
 
 
 def read_artifact(artifact_dir: Path) -> OnTheFlyArtifact:

@@ -29,6 +29,7 @@ from motionaug.augment.methods.common import (
     caption_text,
     carries_style,
     longest_frames,
+    module_device,
     neutral_text,
     retimed,
     revised_texts,
@@ -81,13 +82,17 @@ def _schedule_index(params: OnTheFlyParams) -> tuple[NoiseSchedule, int]:
 def reconstruction_loss(
     model: nn.Module, pairs: StylePairs, params: OnTheFlyParams, generator: torch.Generator
 ) -> Tensor:
-    """L_rec: mean over the DDIM path from K of ||m_s - y0_hat(t)||^2, starting from q_sample(m_sn, K)."""
+    """L_rec: mean over the DDIM path from K of ||m_s - y0_hat(t)||^2, starting from q_sample(m_sn, K).
+
+    Runs where the pairs are (the model's device); the noise is drawn on CPU from ``generator``.
+    """
     sched, n_run = _schedule_index(params)
     styled = pairs.styled
-    noise = torch.randn(styled.x.shape, generator=generator)
+    device = styled.x.device
+    noise = torch.randn(styled.x.shape, generator=generator).to(device)
     t = torch.full((styled.x.shape[0],), n_run - 1, dtype=torch.long)
     y_k = q_sample(sched, pairs.neutral, t, noise)
-    with bf16_autocast(params.bf16):
+    with bf16_autocast(params.bf16, device):
         preds = ddim_path(
             bind_model(model, pairs.text_embed, styled.mask),
             y_k,
@@ -103,11 +108,12 @@ def transferred_path_end(
 ) -> Tensor:
     """The differentiable DDIM transfer of ``batch`` from K (trajectory inpainted), the last x0 of the path."""
     sched, n_run = _schedule_index(params)
+    device = batch.x.device
     t = torch.full((batch.x.shape[0],), n_run - 1, dtype=torch.long)
-    with bf16_autocast(params.bf16):
+    with bf16_autocast(params.bf16, device):
         preds = ddim_path(
-            bind_model(model, text_embed, batch.mask),
-            q_sample(sched, batch.x, t, noise),
+            bind_model(model, text_embed.to(device), batch.mask),
+            q_sample(sched, batch.x, t, noise.to(device)),
             n_run,
             steps=params.ddim_steps,
             inpaint=batch.inpaint(kept_channels(params)),
@@ -124,11 +130,12 @@ def semantic_guidance_loss(
     generator: torch.Generator,
 ) -> Tensor:
     """L_s (Eq. 8): 1 - cos(motion_encoder(transferred corpus motions), text_encoder(revised captions))."""
-    batch = MotionBatch.from_motions([pool.motions[i] for i in indices], None)
+    device = module_device(model)
+    batch = MotionBatch.from_motions([pool.motions[i] for i in indices], None).to(device)
     picks = torch.randint(0, 1 << 30, (len(indices),), generator=generator).tolist()
     texts = [pool.captions[i][p % len(pool.captions[i])] for i, p in zip(indices, picks)]
-    text_embed = base.text_encoder.encode(texts)
-    noise = torch.randn(batch.x.shape, generator=generator)
+    text_embed = base.text_encoder.encode(texts).to(device)
+    noise = torch.randn(batch.x.shape, generator=generator).to(device)
     transferred = transferred_path_end(model, batch, text_embed, params, noise)
     return semantic_loss(base.motion_encoder(transferred, batch.mask), text_embed)
 
@@ -209,10 +216,12 @@ def finetune(
     """Sec. 3.3-3.5: copy the prior, train it on lambda_rec L_rec + lambda_s L_s; everything else stays frozen.
 
     The copy runs in eval mode: the loss follows a deterministic DDIM path, and training-time text dropout would
-    spend the style example on the unconditional branch.
+    spend the style example on the unconditional branch. It trains on the prior's device; randomness is drawn on
+    CPU from the seed, so a seed means the same noise, batches and LoRA init on every device.
     """
     generator = seeded_generator(params.seed)
     model = copy.deepcopy(base.prior).eval()
+    zero = torch.zeros((), device=module_device(model))
     trainable = _trainable(model, params)
     optimizer = torch.optim.AdamW(trainable, lr=params.lr, weight_decay=0.0)
     average = WeightAverage(trainable, params.ema_decay) if params.ema_decay is not None else None
@@ -224,8 +233,8 @@ def finetune(
     curve: list[dict[str, float]] = []
     start = time.perf_counter()
     for step, indices in enumerate(plan):
-        l_rec = reconstruction_loss(model, pairs, params, generator) if params.lambda_rec > 0 else torch.zeros(())
-        l_s = semantic_guidance_loss(model, base, pool, indices, params, generator) if use_s else torch.zeros(())
+        l_rec = reconstruction_loss(model, pairs, params, generator) if params.lambda_rec > 0 else zero
+        l_s = semantic_guidance_loss(model, base, pool, indices, params, generator) if use_s else zero
         total = params.lambda_rec * l_rec + params.lambda_s * l_s
         optimizer.zero_grad(set_to_none=True)
         total.backward()
@@ -303,5 +312,5 @@ def make_pool(
         batch = MotionBatch.from_motions([m for _, m, _ in chunk], base)
         embed = base.text_encoder.encode([neutral_text(caption_text(c), vocab) for c, _, _ in chunk])
         twins = neutral_twins(base.prior, batch, embed, params, generator)
-        motions += [twins[i, :n].numpy() for i, n in enumerate(batch.lengths)]
+        motions += [twins[i, :n].cpu().numpy() for i, n in enumerate(batch.lengths)]
     return ContentPool(motions, [t for _, _, t in clean + styled]), skipped

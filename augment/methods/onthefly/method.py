@@ -1,7 +1,8 @@
 """``OnTheFlyMethod``: the method behind the workflow's contract (``augment.methods.base``).
 
 ``train``: the base models (the T2M prior, the motion encoder); ``prepare``: pairs + fine-tuning -> artefact;
-``load``: artefact -> ``OnTheFlyModel``.
+``load``: artefact -> ``OnTheFlyModel``. ``prepare`` and ``load`` put the base models on ``pick_device()`` (CUDA when
+present, ``$MOTIONAUG_DEVICE`` to choose); everything after runs where they are.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 from pydantic import BaseModel, ValidationError
 
 from motionaug.augment.corpus.clip import MotionClip
+from motionaug.augment.device import pick_device
 from motionaug.augment.io import atomic_write_text
 from motionaug.augment.methods.base import (
     ARTIFACT_WEIGHTS,
@@ -25,6 +27,7 @@ from motionaug.augment.methods.base import (
 )
 from motionaug.augment.methods.common import (
     configure_threads,
+    place_models,
     seeded_generator,
     style_vocab,
     tensor_bytes,
@@ -140,7 +143,7 @@ class OnTheFlyMethod(StyleTransferMethod):
         if trained is None:
             raise MotionDataError(f"{METHOD_NAME} prepare", "needs base models (the train step's folder)")
         configure_threads()
-        base = BaseModels.load(trained, text_encoder=self.text_encoder)
+        base = place_models(BaseModels.load(trained, text_encoder=self.text_encoder), pick_device())
         model, fit, pool, skipped = self.fit(style, examples, base, content, seed, progress)
         return self.save(Path(out), Path(trained), model, fit, pool, skipped)
 
@@ -187,6 +190,7 @@ class OnTheFlyMethod(StyleTransferMethod):
                 str(artifact_dir), f"tuned from base models {info.base_fingerprint}, {base_dir} is {found}"
             )
         base = BaseModels.load(base_dir, text_encoder=options.get("text_encoder", self.text_encoder))
+        base = place_models(base, pick_device())
         model = rebuild_transfer_model(base, info, artifact_dir / ARTIFACT_WEIGHTS, bool(options.get("merge", False)))
         params = (
             info.params if "bf16" not in options else info.params.model_copy(update={"bf16": bool(options["bf16"])})

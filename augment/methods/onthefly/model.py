@@ -27,6 +27,7 @@ from motionaug.augment.methods.common import (
     carries_style,
     clip_noise,
     longest_frames,
+    module_device,
     neutral_text,
     output_motion,
     output_scores,
@@ -56,7 +57,10 @@ class _Job:
 
 
 class OnTheFlyModel:
-    """A fine-tuned transfer model serving batches (``StyleModel``). Bad clips come back as ``Reject``s."""
+    """A fine-tuned transfer model serving batches (``StyleModel``). Bad clips come back as ``Reject``s.
+
+    Batches run on the transfer model's device; outputs come back as CPU numpy arrays.
+    """
 
     def __init__(
         self,
@@ -72,6 +76,7 @@ class OnTheFlyModel:
         self.spec = style
         self.base = base
         self.model = model.eval().requires_grad_(False)
+        self.device = module_device(self.model)
         self.params = params
         self.batch_size = batch_size or params.batch_size
         self.vocab = style_vocab(style.words, style.name)
@@ -111,20 +116,20 @@ class OnTheFlyModel:
 
     def _content(self, jobs: Sequence[_Job], seed: int) -> MotionBatch:
         """The batch to stylize: clips whose captions name a style are replaced by their neutral twins first."""
-        batch = MotionBatch.from_motions([j.motion for j in jobs], self.base)
+        batch = MotionBatch.from_motions([j.motion for j in jobs], self.base).to(self.device)
         if not any(j.styled for j in jobs):
             return batch
         embed = self.base.text_encoder.encode([neutral_text(caption_text(j.clip), self.vocab) for j in jobs])
         twins = neutral_twins(self.base.prior, batch, embed, self.params, seeded_generator(seed))
-        keep = torch.tensor([j.styled for j in jobs])[:, None, None] & batch.mask[..., None]
+        keep = torch.tensor([j.styled for j in jobs], device=self.device)[:, None, None] & batch.mask[..., None]
         return MotionBatch(torch.where(keep, twins, batch.x), batch.mask, batch.lengths)
 
     def _transfer_batch(self, jobs: Sequence[_Job], seed: int) -> list[TransferOutput]:
         content = self._content(jobs, seed)
-        cond = self.base.text_encoder.encode([j.captions[0].text for j in jobs])
+        cond = self.base.text_encoder.encode([j.captions[0].text for j in jobs]).to(self.device)
         n_run = start_step_for(self.params.transfer_noise_step, self.params.ddim_steps)
-        noise = clip_noise(content.x.shape, [j.clip.id for j in jobs], seed)
-        with torch.no_grad(), bf16_autocast(self.params.bf16):
+        noise = clip_noise(content.x.shape, [j.clip.id for j in jobs], seed)  # CPU: the same on every device
+        with torch.no_grad(), bf16_autocast(self.params.bf16, self.device):
             out = ddim_sample(
                 bind_model(self.model, cond, content.mask),
                 content.x.shape,
@@ -134,8 +139,10 @@ class OnTheFlyModel:
                 noise=noise,
                 inpaint=content.inpaint(kept_channels(self.params)),
                 guidance_scale=self.params.transfer_guidance_scale,
+                device=self.device,
             ).float()
         scores = self._scores(out, content.mask, cond, jobs)
+        out = out.cpu()
         return [self._output(j, out[i, : j.motion.shape[0]], scores[i]) for i, j in enumerate(jobs)]
 
     def _scores(self, out: Tensor, mask: Tensor, style_embed: Tensor, jobs: Sequence[_Job]) -> list[dict[str, float]]:

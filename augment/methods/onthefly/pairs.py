@@ -22,6 +22,7 @@ from motionaug.augment.methods.common import (
     MotionBatch,
     caption_text,
     feet_channels,
+    module_device,
     neutral_text,
     trajectory_channels,
 )
@@ -40,10 +41,13 @@ def neutral_twins(
     """Eqs. 3-5: the prior's neutral version of each motion, same trajectory (inpainted exactly), (B, T, D).
 
     DDPM from G (``pair_noise_step``) conditioned on the neutral description; padding frames are left as noise.
+    Runs on the prior's device (noise drawn on CPU from ``generator``); the twins stay there.
     """
-    model_fn = bind_model(prior, text_embed, batch.mask)
+    device = module_device(prior)
+    batch = batch.to(device)
+    model_fn = bind_model(prior, text_embed.to(device), batch.mask)
     start = start_step_for(params.pair_noise_step, params.pair_steps)
-    with torch.no_grad(), bf16_autocast(params.bf16):
+    with torch.no_grad(), bf16_autocast(params.bf16, device):
         return ddpm_sample(
             model_fn,
             batch.x.shape,
@@ -53,6 +57,7 @@ def neutral_twins(
             inpaint=batch.inpaint(kept_channels(params)),
             guidance_scale=params.pair_guidance_scale,
             generator=generator,
+            device=device,
         )
 
 
@@ -72,11 +77,15 @@ def make_pairs(
     generator: torch.Generator,
     vocab: dict[str, Any] | None = None,
 ) -> StylePairs:
-    """Validate the examples and generate their neutral twins with the prior (all examples in one batch)."""
+    """Validate the examples and generate their neutral twins with the prior (all examples in one batch).
+
+    The pairs live on the prior's device, where fine-tuning reads them.
+    """
+    device = module_device(base.prior)
     motions = [check_motion(e.motion, f"style example {e.id}", min_frames=params.min_frames) for e in examples]
-    styled = MotionBatch.from_motions(motions, base)
+    styled = MotionBatch.from_motions(motions, base).to(device)
     descriptions = [caption_text(e) for e in examples]
     neutral_embed = base.text_encoder.encode([neutral_text(d, vocab) for d in descriptions])
     neutral = neutral_twins(base.prior, styled, neutral_embed, params, generator)
     neutral = torch.where(styled.mask[..., None], neutral, styled.x)  # padding: keep finite, it is never read
-    return StylePairs(styled, neutral, base.text_encoder.encode(descriptions))
+    return StylePairs(styled, neutral, base.text_encoder.encode(descriptions).to(device))

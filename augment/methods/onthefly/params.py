@@ -84,7 +84,9 @@ class OnTheFlyParams(BaseModel):
         description="L_s pool: drop corpus clips whose captions name a style, or neutralise them (slow: DDPM from G).",
     )
     min_frames: int = 20
-    bf16: bool | None = Field(None, description="bf16 autocast on CPU; None = where the CPU has bf16 units.")
+    bf16: bool | None = Field(
+        None, description="bf16 autocast; None = on CUDA (tensor cores) and on CPUs with bf16 units, else fp32."
+    )
     seed: int = 0
 
 

@@ -1,0 +1,153 @@
+"""Data-parallel pre-training on Ray Train: ``motionaug pretrain --workers N`` on a local Ray or a cluster.
+
+Each Ray Train worker runs the one-process ``pretrain`` with its place in the run (``Parallel``) on its own
+device (``ray.train.torch.get_device()``: the GPU Ray Train assigned it, else CPU): every worker
+draws the same seeded global batch of ``batch_size`` clips and trains on its equal slice, and DDP averages the
+gradients (gloo on CPU, NCCL on GPU). The steps are those one process takes with the same global batch, so the
+worker count changes the speed, not the model (up to float reduction order).
+
+Checkpoints stay the project's own (``OUT/checkpoints``: safetensors weights, optimizer and generator states,
+written by rank 0), because they resume bit for bit and do not depend on the worker count: a run started on
+4 workers resumes on 1 process or on 8. That folder is also Ray Train's experiment folder, and every checkpoint
+is reported there with ``ray.train.report(checkpoint=..., NO_UPLOAD)``, so Ray Train tracks it without copying.
+A worker that dies makes Ray Train restart the group (``max_failures``), and the restarted workers, like a
+re-run of the command, resume from the last checkpoint. Each launch starts a fresh Ray Train run state (the
+project rotates step folders that an old state would still list). ``OUT`` must be on storage every node sees.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from pathlib import Path
+from typing import Any
+
+import ray
+import ray.train
+from ray.train import Checkpoint, CheckpointUploadMode, FailureConfig, RunConfig, ScalingConfig
+from ray.train.torch import TorchConfig, TorchTrainer, get_device
+
+from motionaug.augment.training.pretrain import CHECKPOINTS, Parallel, PretrainConfig, pretrain
+from motionaug.schemas.errors import MotionDataError
+
+LOG = logging.getLogger(__name__)
+MAX_FAILURES = 2
+RAY_TRAIN_SNAPSHOT = "checkpoint_manager_snapshot.json"  # Ray Train's run state in its experiment folder
+
+
+def _report(metrics: dict[str, float], folder: Path | None) -> None:
+    """Tell Ray Train about a checkpoint rank 0 just wrote (in place: it lies inside the experiment folder)."""
+    checkpoint = Checkpoint(str(folder)) if folder is not None else None
+    ray.train.report(metrics, checkpoint=checkpoint, checkpoint_upload_mode=CheckpointUploadMode.NO_UPLOAD)
+
+
+def _print_progress(stage: str, step: int, total: int, values: dict[str, float]) -> None:
+    """Rank 0's progress as log lines (Ray Train sends them to the driver's console and the job log)."""
+    if step == total or step % 50 == 0:
+        loss = next((f" loss {v:.4f}" for k, v in values.items() if "loss" in k), "")
+        LOG.info("pretrain %s %d/%d%s", stage, step, total, loss)
+
+
+def _worker(setup: dict[str, Any]) -> None:
+    """One Ray Train worker: the whole pretraining with its rank, on its device (NCCL needs the GPU Ray Train
+    gave this worker, gloo the CPU); rank 0 also trains the evaluators and saves."""
+    context = ray.train.get_context()
+    rank, world = context.get_world_rank(), context.get_world_size()
+    config = PretrainConfig.model_validate(setup["config"]).model_copy(update={"threads": setup["threads"]})
+    progress = _print_progress if rank == 0 else None
+    parallel = Parallel(rank, world, _report)
+    pretrain(setup["corpus"], setup["out"], config, progress, parallel=parallel, device=get_device())
+
+
+def _cpus_per_worker(workers: int) -> int:
+    """An equal share of the cluster's CPUs (at least one): each worker sets its torch threads to it."""
+    total = int(ray.cluster_resources().get("CPU", 1))
+    return max(1, total // workers)
+
+
+def _check_gpus(gpus_per_worker: float, workers: int) -> None:
+    have = ray.cluster_resources().get("GPU", 0.0)
+    if gpus_per_worker > 0 and have < gpus_per_worker * workers:
+        reason = (
+            f"{workers} workers x {gpus_per_worker} GPUs need {gpus_per_worker * workers:g}, the cluster has {have:g}"
+        )
+        raise MotionDataError("pretrain --gpus-per-worker", reason)
+
+
+def _first_cause(err: ray.train.TrainingFailedError) -> Exception:
+    """The error a worker raised (a MotionDataError stays one line), or Ray Train's own."""
+    failures = getattr(err, "worker_failures", None) or {}
+    for failure in failures.values():
+        cause = getattr(failure, "cause", failure)
+        if isinstance(cause, MotionDataError):
+            return cause
+    return err
+
+
+def train_on_ray(
+    corpus_dir: str | Path,
+    out_dir: str | Path,
+    config: PretrainConfig,
+    workers: int,
+    gpus_per_worker: float = 0.0,
+) -> None:
+    """Pretrain into ``out_dir`` on ``workers`` Ray Train workers of the Ray this process is connected to."""
+    out = Path(out_dir).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    # each launch is a new Ray Train run: a previous launch's run state lists step folders the project has since
+    # rotated away, which Ray Train refuses as a corrupted run; resuming reads the project's checkpoints instead
+    (out / CHECKPOINTS / RAY_TRAIN_SNAPSHOT).unlink(missing_ok=True)
+    _check_gpus(gpus_per_worker, workers)
+    cpus = _cpus_per_worker(workers)
+    resources: dict[str, float] = {"CPU": cpus, **({"GPU": gpus_per_worker} if gpus_per_worker > 0 else {})}
+    trainer = TorchTrainer(
+        _worker,
+        train_loop_config={
+            "corpus": str(Path(corpus_dir).resolve()),
+            "out": str(out),
+            "config": config.model_dump(),
+            "threads": config.threads or cpus,
+        },
+        torch_config=TorchConfig(backend="nccl" if gpus_per_worker > 0 else "gloo"),
+        scaling_config=ScalingConfig(num_workers=workers, use_gpu=gpus_per_worker > 0, resources_per_worker=resources),
+        run_config=RunConfig(
+            name=CHECKPOINTS, storage_path=str(out), failure_config=FailureConfig(max_failures=MAX_FAILURES)
+        ),
+    )
+    try:
+        trainer.fit()
+    except ray.train.TrainingFailedError as err:
+        raise _first_cause(err) from None
+
+
+def pretrain_on_ray(
+    corpus_dir: str | Path,
+    out_dir: str | Path,
+    config: PretrainConfig,
+    workers: int,
+    gpus_per_worker: float = 0.0,
+    address: str | None = None,
+) -> Path:
+    """``ensure_base_models`` with the training on Ray Train; joins ``address`` or starts an embedded Ray.
+
+    An already initialised Ray (a test's, a job driver's) is used as it is.
+    """
+    from motionaug.augment.training.pretrain import ensure_base_models
+
+    if workers < 1:
+        raise MotionDataError("pretrain --workers", f"must be at least 1, got {workers}")
+    Parallel(0, workers).part(config.batch_size)  # a batch that does not split is refused before Ray starts
+    started = not ray.is_initialized()
+    if started:
+        os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+        ray.init(address=address, log_to_driver=True)
+    try:
+        return ensure_base_models(
+            corpus_dir,
+            out_dir,
+            config=config,
+            runner=lambda corpus, out, cfg: train_on_ray(corpus, out, cfg, workers, gpus_per_worker),
+        )
+    finally:
+        if started:
+            ray.shutdown()
