@@ -20,56 +20,13 @@ from pathlib import Path
 
 import torch
 
-from motionaug.augment.diffusion import bind_model, ddim_sample
 from motionaug.augment.eval.evaluation import Classifiers, load_classifiers
+from motionaug.augment.eval.expansion import generate, one_row_per_caption
 from motionaug.augment.eval.metrics import retrieval_r_at_k
 from motionaug.augment.training.base_models import BaseModels
 from motionaug.augment.training.data import MotionSet, build_motion_set, iter_batches, read_clips, split_ids
 from motionaug.augment.training.evaluators import classifier_accuracy
 from motionaug.augment.training.pretrain import joints_of, skeleton_for
-
-
-@torch.no_grad()
-def generate(
-    models: BaseModels, data: MotionSet, scale: float | None, steps: int, batch_size: int, seed: int
-) -> MotionSet:
-    """A MotionSet of generated (normalised) motions for each clip's first caption at its length."""
-    generator = torch.Generator().manual_seed(seed)
-    max_frames = models.info.max_frames
-    out: list[torch.Tensor] = []
-    for batch in iter_batches(data, batch_size, max_frames):
-        model_fn = bind_model(models.prior, batch.text_embed, batch.mask)
-        with torch.autocast("cpu", dtype=torch.bfloat16):
-            sample = ddim_sample(model_fn, batch.motion.shape, steps=steps, guidance_scale=scale, generator=generator)
-        out.extend(sample[i, : int(batch.mask[i].sum())].float() for i in range(sample.shape[0]))
-    return MotionSet(
-        ids=data.ids,
-        motions=out,
-        captions=[[c[0]] for c in data.captions],
-        texts=data.texts,
-        text_embed=data.text_embed,
-        content=data.content,
-        style=data.style,
-        content_labels=data.content_labels,
-        style_labels=data.style_labels,
-    )
-
-
-def one_row_per_caption(data: MotionSet) -> MotionSet:
-    """Every (clip, caption) pair as its own entry: about three samples per held-out clip instead of one."""
-    rows = [(i, c) for i, caps in enumerate(data.captions) for c in caps]
-    index = torch.tensor([i for i, _ in rows])
-    return MotionSet(
-        ids=[f"{data.ids[i]}#{c}" for i, c in rows],
-        motions=[data.motions[i] for i, _ in rows],
-        captions=[[c] for _, c in rows],
-        texts=data.texts,
-        text_embed=data.text_embed,
-        content=data.content[index],
-        style=data.style[index],
-        content_labels=data.content_labels,
-        style_labels=data.style_labels,
-    )
 
 
 def accuracies(models: BaseModels, judges: Classifiers, data: MotionSet) -> dict[str, float]:

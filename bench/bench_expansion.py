@@ -1,0 +1,383 @@
+"""Does the expansion help a text-to-motion model? Issue 22's protocol, one command per corpus.
+
+Usage: python bench/bench_expansion.py synthetic --work WORK [--methods stats,onthefly] [--prior-steps 1500]
+       python bench/bench_expansion.py bandai2 --work WORK [--methods stats,onthefly]
+
+Stages, each reused from WORK when finished (rerun the same command to resume):
+1. corpus: ``synthetic``: a 1,000-clip synthetic corpus (every style, seed 0); ``bandai2``: ``motionaug corpus
+   import-bvh`` of ../shared/data/bandai/dataset-2 with whole takes held out (docs/bandai.md).
+2. judge: evaluators trained apart from A, B and C: ``synthetic``: base models (content / style classifiers, motion
+   encoder) pre-trained on a second synthetic corpus (seed 1, every style); ``bandai2``: on the corpus's train split
+   (every style; no second real corpus exists, so C's extra takes are among the judge's training data).
+3. split (``motionaug.augment.eval.expansion.split_by_style``): A = the corpus without the missing styles (motions and
+   captions); held out = the test split, every style; one train clip of ``walk`` per missing style as the example.
+4. prior A: the same pre-training config for every training set (``--prior-steps``, seed 0). A's base models are
+   also what the on-the-fly method fine-tunes, as a user would expand with the model they have.
+5. per method: ``motionaug run`` stylizes A's ``expand`` clips (neutral train clips) into every missing style,
+   their stylized clips are merged with A in its train split (B), prior B.
+6. C: A plus the true stylized clips (synthetic: the ``expand`` clips re-rendered in each missing style; bandai2:
+   the real train takes of the missing styles), prior C.
+7. scoring (``score_prior``): every caption of every held-out clip, DDIM-``--ddim`` with guidance ``--guidance``,
+   judged by the judge. Writes WORK/results.json, prints a Markdown table; ``--plots DIR`` writes the PNGs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from motionaug.augment.eval.expansion import (
+    BASE_DIR,
+    HELD_OUT_DIR,
+    SPLIT_JSON,
+    Judge,
+    StyleSplit,
+    gain_share,
+    merge_clips,
+    run_clips,
+    score_prior,
+    split_by_style,
+    true_stylized,
+)
+from motionaug.augment.training.pretrain import PretrainConfig, ensure_base_models
+
+REPO = Path(__file__).resolve().parents[1]
+BANDAI2 = REPO.parent / "shared" / "data" / "bandai" / "dataset-2"
+SYNTH_MISSING = ("angry", "old", "sneaky", "strutting")
+
+
+def log(message: str) -> None:
+    print(f"[{time.strftime('%H:%M:%S')}] {message}", file=sys.stderr, flush=True)
+
+
+def timed(work: Path, name: str, fn: Any) -> Any:
+    """Run a stage and add its wall seconds to WORK/timings.json (a resumed stage adds its remainder)."""
+    start = time.perf_counter()
+    result = fn()
+    path = work / "timings.json"
+    timings = json.loads(path.read_text()) if path.is_file() else {}
+    timings[name] = round(timings.get(name, 0.0) + time.perf_counter() - start, 1)
+    path.write_text(json.dumps(timings, indent=1))
+    return result
+
+
+def prior_config(args: argparse.Namespace) -> PretrainConfig:
+    """The one pre-training config of A, B and C. Their own evaluators judge nothing here (the judge does), so they
+    get the tiny classifier; A's motion encoder is what the on-the-fly method's L_s reads."""
+    return PretrainConfig.for_size(
+        args.size,
+        seed=0,
+        prior_steps=args.prior_steps,
+        encoder_steps=args.encoder_steps,
+        classifier_size="tiny",
+        classifier_epochs=args.classifier_epochs,
+        threads=args.threads,
+    )
+
+
+def judge_config(args: argparse.Namespace) -> PretrainConfig:
+    """The judge's prior only feeds its motion encoder's input layer, so it gets few steps; the encoder gets more."""
+    return PretrainConfig.for_size(
+        args.size,
+        seed=1,
+        prior_steps=args.judge_prior_steps,
+        encoder_steps=args.judge_encoder_steps,
+        classifier_epochs=args.judge_classifier_epochs,
+        threads=args.threads,
+    )
+
+
+def make_corpora(args: argparse.Namespace, work: Path) -> tuple[Path, Path]:
+    """The labelled corpus to split and the one the judge trains on."""
+    corpus = work / "corpus"
+    if args.protocol == "synthetic":
+        from motionaug.augment.synth import generate_corpus
+
+        if not (corpus / "labels.jsonl").is_file():
+            timed(work, "corpus", lambda: generate_corpus(corpus, args.clips, seed=0))
+        judge_corpus = work / "judge_corpus"
+        if not (judge_corpus / "labels.jsonl").is_file():
+            timed(work, "judge_corpus", lambda: generate_corpus(judge_corpus, args.clips, seed=1))
+        return corpus, judge_corpus
+    if not (corpus / "labels.jsonl").is_file():
+        cmd = [*motionaug(), "corpus", "import-bvh", str(BANDAI2), "--out", str(corpus), "--max-frames", "196"]
+        cmd += ["--val-takes", "3", "--test-takes", "3", "--mean-std"]
+        timed(work, "corpus", lambda: subprocess.run(cmd, check=True))
+    return corpus, corpus
+
+
+def motionaug() -> list[str]:
+    return [sys.executable, "-m", "motionaug.workflows.cli"]
+
+
+def style_words(args: argparse.Namespace) -> dict[str, Any]:
+    """How captions name each style: the synthetic lexicon, or Bandai-2's words from its shipped run config."""
+    if args.protocol == "synthetic":
+        from motionaug.augment.synth import STYLE_WORDS
+
+        return dict(STYLE_WORDS)
+    from motionaug.schemas.run_config import load_run_config
+
+    return {s.name: s.words for s in load_run_config(REPO / "configs" / "bandai2-onthefly.yaml").styles}
+
+
+def missing_styles(args: argparse.Namespace) -> list[str]:
+    if args.missing:
+        return args.missing.split(",")
+    return list(SYNTH_MISSING) if args.protocol == "synthetic" else [s for s in style_words(args) if s != "normal"]
+
+
+def run_config(args: argparse.Namespace, work: Path, split: StyleSplit, method: str) -> dict[str, Any]:
+    """A ``motionaug run`` config that stylizes A's ``expand`` clips into every missing style from one example each."""
+    words = style_words(args)
+    styles = [
+        {
+            "name": style,
+            "words": words[style].model_dump(exclude_none=True, mode="json"),
+            "examples": [{"source": str(work / "split" / ex["path"]), "description": ex["description"]}],
+        }
+        for style, ex in split.examples.items()
+    ]
+    base_models: dict[str, Any] = {"path": str(work / "priors" / "A"), "pretrain_if_missing": False}
+    if method in ("erd", "umsd"):  # they learn from a labelled style corpus: its train split holds no held-out clip
+        base_models["corpus"] = str(work / "corpus")
+    return {
+        "version": 1,
+        "corpus": {"path": str(work / "split" / BASE_DIR), "split": "expand", "filters": {"max_frames": 199}},
+        "styles": styles,
+        "method": {"name": method, "params": json.loads(args.params).get(method, {})},
+        "base_models": base_models,
+        "fan_out": {"per_clip": "all", "seed": 0},
+        "compute": {"num_cpus": args.threads, "batch_size": 32, "unit_size": 256},
+        "output": str(work / "runs" / method),
+        "seed": 0,
+    }
+
+
+def expand(args: argparse.Namespace, work: Path, split: StyleSplit, method: str) -> Path:
+    """B for one method: run, export, return the merged corpus."""
+    out = work / "corpora" / f"B_{method}"
+    if (out / "Mean.npy").is_file():
+        return out
+    config_path = work / "runs" / f"{method}.yaml"
+    config_path.parent.mkdir(parents=True, exist_ok=True)
+    config_path.write_text(yaml.safe_dump(run_config(args, work, split, method), sort_keys=False))
+    run_dir = work / "runs" / method
+    log(f"expanding A with {method}")
+    cmd = [*motionaug(), "run", str(config_path), "--out", str(run_dir)]
+    timed(
+        work,
+        f"run_{method}",
+        lambda: subprocess.run(cmd, check=True, env={**os.environ, "RAY_USAGE_STATS_ENABLED": "0"}),
+    )
+    timed(work, f"merge_{method}", lambda: merge_clips(work / "split" / BASE_DIR, run_clips(run_dir), out))
+    return out
+
+
+def upper_bound(work: Path) -> Path:
+    out = work / "corpora" / "C"
+    if not (out / "Mean.npy").is_file():
+        log("writing C (A + the true stylized clips)")
+        timed(work, "corpus_C", lambda: merge_clips(work / "split" / BASE_DIR, true_stylized(work / "split"), out))
+    return out
+
+
+def pretrain(args: argparse.Namespace, work: Path, name: str, corpus: Path, config: PretrainConfig) -> Path:
+    log(f"pre-training {name} on {corpus.name} ({config.prior_steps} prior steps)")
+    return timed(work, f"pretrain_{name}", lambda: ensure_base_models(corpus, work / "priors" / name, config=config))
+
+
+def score(args: argparse.Namespace, work: Path, name: str, judge: Judge, split: StyleSplit) -> dict:
+    path = work / "scores" / f"{name}.json"
+    if path.is_file():
+        return json.loads(path.read_text())
+    log(f"scoring {name}")
+    figures = timed(
+        work,
+        f"score_{name}",
+        lambda: score_prior(
+            work / "priors" / name,
+            work / "split" / HELD_OUT_DIR,
+            judge,
+            split.missing,
+            neutral=split.neutral,
+            guidance=args.guidance,
+            steps=args.ddim,
+            seed=args.seed,
+        ),
+    )
+    path.parent.mkdir(exist_ok=True)
+    path.write_text(json.dumps(figures, indent=1))
+    return figures
+
+
+def summarise(scores: dict[str, dict], methods: list[str]) -> dict[str, Any]:
+    """Per method: B's gain over A as a share of C's, and the issue's targets."""
+    a, c = scores["A"], scores["C"]
+    out: dict[str, Any] = {}
+    for method in methods:
+        b = scores[f"B_{method}"]
+        sra = [s["style_prompted"]["style"] for s in (a, b, c)]
+        out[method] = {
+            "style_gain_points": 100 * (sra[1] - sra[0]),
+            "style_share_of_C": gain_share(*sra),
+            "neutral_content_drop_points": 100 * (a["neutral"]["content"] - b["neutral"]["content"]),
+            "targets_met": {
+                "style >= A + 40 points": sra[1] - sra[0] >= 0.40,
+                "style >= 70% of the way to C": (gain_share(*sra) or 0.0) >= 0.70,
+                "neutral content <= 3 points below A": a["neutral"]["content"] - b["neutral"]["content"] <= 0.03,
+            },
+        }
+    return out
+
+
+def pct(value: float | None) -> str:
+    return "n/a" if value is None else f"{100 * value:.1f}"
+
+
+def num(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.2f}"
+
+
+def table(scores: dict[str, dict]) -> str:
+    """Markdown: one row per training set."""
+    head = (
+        "| training set | style-prompted: style % | content % | FMD | R@1 | R@3 | diversity "
+        "| neutral: content % | style % | FMD | all captions: content % | R@1 | R@3 |"
+    )
+    lines = [head, "|" + "---|" * 13]
+    for name, s in scores.items():
+        p, n, a = s["style_prompted"], s["neutral"], s["all"]
+        lines.append(
+            f"| {name} | {pct(p['style'])} | {pct(p['content'])} | {num(p['fmd'])} | {pct(p['r1'])} | {pct(p['r3'])} "
+            f"| {num(p['diversity'])} | {pct(n['content'])} | {pct(n['style'])} | {num(n['fmd'])} "
+            f"| {pct(a['content'])} | {pct(a['r1'])} | {pct(a['r3'])} |"
+        )
+    real = next(iter(scores.values()))
+    lines.append(
+        f"| real held-out clips | {pct(real['style_prompted']['real_style'])} "
+        f"| {pct(real['style_prompted']['real_content'])} | | | | | {pct(real['neutral']['real_content'])} "
+        f"| {pct(real['neutral']['real_style'])} | | {pct(real['all']['real_content'])} | | |"
+    )
+    return "\n".join(lines)
+
+
+def plot(scores: dict[str, dict], out: Path, title: str) -> list[Path]:
+    """Bar charts (matplotlib): recognition per caption group, and FMD / R@3 on style-prompted captions."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out.mkdir(parents=True, exist_ok=True)
+    names = list(scores)
+    colours = ["#999999" if n == "A" else "#2b6cb0" if n.startswith("B") else "#2f855a" for n in names]
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    panels = (
+        ("style recognition, style-prompted captions (%)", [scores[n]["style_prompted"]["style"] for n in names]),
+        ("content recognition, neutral captions (%)", [scores[n]["neutral"]["content"] for n in names]),
+        ("R@3, style-prompted captions (%)", [scores[n]["style_prompted"]["r3"] for n in names]),
+    )
+    for ax, (label, values) in zip(axes, panels):
+        ax.bar(names, [100 * (v or 0.0) for v in values], color=colours)
+        ax.set_title(label, fontsize=10)
+        ax.set_ylim(0, 100)
+        for i, v in enumerate(values):
+            ax.text(i, 100 * (v or 0.0) + 1.5, "n/a" if v is None else f"{100 * v:.0f}", ha="center", fontsize=9)
+        ax.tick_params(axis="x", labelrotation=20)
+    fig.suptitle(title, fontsize=11)
+    fig.tight_layout()
+    first = out / "recognition.png"
+    fig.savefig(first, dpi=110)
+    plt.close(fig)
+    fig, ax = plt.subplots(figsize=(6, 3.8))
+    values = [scores[n]["style_prompted"]["fmd"] for n in names]
+    ax.bar(names, [v or 0.0 for v in values], color=colours)
+    for i, v in enumerate(values):
+        ax.text(i, v or 0.0, "n/a" if v is None else f"{v:.2f}", ha="center", va="bottom", fontsize=9)
+    ax.set_title("FMD to real held-out clips, style-prompted captions (lower is better)", fontsize=10)
+    ax.tick_params(axis="x", labelrotation=20)
+    fig.tight_layout()
+    second = out / "fmd.png"
+    fig.savefig(second, dpi=110)
+    plt.close(fig)
+    return [first, second]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("protocol", choices=("synthetic", "bandai2"))
+    parser.add_argument("--work", type=Path, required=True)
+    parser.add_argument("--methods", default="stats,onthefly", help="comma-separated: stats, onthefly, erd, umsd")
+    parser.add_argument("--missing", default=None, help="styles A lacks (default: synthetic 4, bandai2 all 6)")
+    parser.add_argument("--clips", type=int, default=800, help="synthetic corpora size")
+    parser.add_argument("--expand", type=int, default=100, help="neutral train clips of A to stylize (0 = all)")
+    parser.add_argument("--size", default="small", choices=("tiny", "small"), help="pre-training preset")
+    parser.add_argument("--prior-steps", type=int, default=1500)
+    parser.add_argument("--encoder-steps", type=int, default=400)
+    parser.add_argument("--classifier-epochs", type=int, default=2, help="A/B/C's own (unused) evaluators")
+    parser.add_argument("--judge-prior-steps", type=int, default=100)
+    parser.add_argument("--judge-encoder-steps", type=int, default=800)
+    parser.add_argument("--judge-classifier-epochs", type=int, default=8)
+    parser.add_argument("--guidance", type=float, default=3.0)
+    parser.add_argument("--ddim", type=int, default=20)
+    parser.add_argument("--seed", type=int, default=0, help="sampling seed")
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--params", default="{}", help='JSON: per-method params, e.g. {"onthefly": {"epochs": 1}}')
+    parser.add_argument("--plots", type=Path, default=None, help="write PNG plots here")
+    args = parser.parse_args()
+    work = args.work.resolve()
+    work.mkdir(parents=True, exist_ok=True)
+    methods = [m for m in args.methods.split(",") if m]
+    corpus, judge_corpus = make_corpora(args, work)
+    neutral = "neutral" if args.protocol == "synthetic" else "normal"
+    if not (work / "split" / SPLIT_JSON).is_file():
+        n_expand = args.expand or None
+        words = style_words(args)
+        missing = missing_styles(args)
+        split_fn = lambda: split_by_style(corpus, work / "split", missing, neutral, n_expand, words=words)  # noqa: E731
+        timed(work, "split", split_fn)
+    split = StyleSplit.read(work / "split")
+    log(f"A lacks {split.missing}; base splits {split.base_splits}; held out {split.held_out}")
+    pretrain(args, work, "judge", judge_corpus, judge_config(args))
+    judge = Judge(work / "priors" / "judge")
+    config = prior_config(args)
+    pretrain(args, work, "A", work / "split" / BASE_DIR, config)
+    scores = {"A": score(args, work, "A", judge, split)}
+    for method in methods:  # each training set is scored as soon as its prior exists: a stopped run keeps figures
+        pretrain(args, work, f"B_{method}", expand(args, work, split, method), config)
+        scores[f"B_{method}"] = score(args, work, f"B_{method}", judge, split)
+    pretrain(args, work, "C", upper_bound(work), config)
+    scores["C"] = score(args, work, "C", judge, split)
+    results = {
+        "protocol": args.protocol,
+        "missing": split.missing,
+        "present": split.present,
+        "base_splits": split.base_splits,
+        "held_out": split.held_out,
+        "expand_clips": len(split.expand_ids),
+        "settings": {k: str(v) for k, v in vars(args).items()},
+        "prior_config": config.model_dump(),
+        "scores": scores,
+        "summary": summarise(scores, methods),
+        "timings": json.loads((work / "timings.json").read_text()),
+        "load": os.getloadavg(),
+    }
+    (work / "results.json").write_text(json.dumps(results, indent=1))
+    print(table(scores))
+    print(json.dumps(results["summary"], indent=1))
+    if args.plots:
+        for path in plot(scores, args.plots, f"{args.protocol}: A lacks {', '.join(split.missing)}"):
+            log(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()
