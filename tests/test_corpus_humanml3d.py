@@ -371,3 +371,17 @@ def test_corrupt_labels_sidecar_is_named(tmp_path: Path) -> None:
     (tmp_path / "labels.jsonl").write_text("{not json\n")
     with pytest.raises(MotionDataError, match=r"labels.jsonl:1"):
         list(HumanML3DReader(tmp_path))
+
+
+def test_a_clip_read_through_another_split_file_keeps_its_standard_split() -> None:
+    from motionaug.augment.corpus import Corpus
+
+    def clip(clip_id: str, split: str | None, parent: str | None = None) -> MotionClip:
+        meta = {k: v for k, v in (("split", split), ("parent", parent)) if v is not None}
+        return MotionClip(clip_id, np.zeros((40, 263), np.float32), [], meta=meta)
+
+    files = {"000001": "train", "000002": "test"}
+    assert Corpus.split_of(clip("000001", "expand"), files) == "train"  # read through expand.txt
+    assert Corpus.split_of(clip("000002#1", "expand", parent="000002"), files) == "test"
+    assert Corpus.split_of(clip("000003", "expand"), files) == "expand"  # no standard split lists it
+    assert Corpus.split_of(clip("000001", "val"), files) == "val"  # a row's own standard split wins

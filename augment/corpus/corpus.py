@@ -123,8 +123,13 @@ class Corpus:
 
     @staticmethod
     def split_of(clip: MotionClip, file_splits: dict[str, str]) -> str | None:
-        """A clip's split: its own (Parquet rows, split readers), else its source file's."""
-        return clip.meta.get("split") or file_splits.get(clip.meta.get("parent", clip.id))
+        """A clip's split: train/val/test as its own (Parquet rows, split readers) or its source file's; a clip read
+        through another split file (a run's ``corpus.split: subset``) keeps that name only when no standard
+        split lists it, so exports of such runs still sort rows into train/val/test."""
+        own = clip.meta.get("split")
+        if own in SPLITS:
+            return own
+        return file_splits.get(clip.meta.get("parent", clip.id)) or own
 
     def _split(self) -> str | None:
         if self.split is not None:
