@@ -231,21 +231,15 @@ def _rerendered(sources: Sequence[MotionClip], styles: Sequence[str]) -> Iterato
 
 
 def run_clips(run_dir: str | Path) -> Iterator[MotionClip]:
-    """Every stylized clip a run wrote, as train clips. The run reads only A's ``expand`` clips (train clips);
-    ``motionaug export`` would keep none of them, as their rows carry the split file's name (``expand``)."""
-    from motionaug.augment.outputs.shards import iter_shard_rows, row_captions, row_motion
+    """Every stylized clip of a finished run (shards verified against its manifest), as train clips: the run read
+    only A's ``expand`` clips, which are train clips."""
+    from motionaug.augment.outputs.run_dir import RunDir
+    from motionaug.augment.outputs.shards import iter_shard_rows, row_clip
+    from motionaug.augment.outputs.verify import verified_shards
 
-    for row in iter_shard_rows(Path(run_dir)):
-        yield MotionClip(
-            row["output_id"],
-            row_motion(row),
-            row_captions(row),
-            fps=float(np.float32(row["fps"])),
-            content=row["content"],
-            style=row["style"],
-            source=f"motionaug run {Path(run_dir).name}",
-            meta={"split": "train", "source_id": row["source_id"], "method": row["method"]},
-        )
+    run = Path(run_dir)
+    for row in iter_shard_rows(run, files=verified_shards(RunDir(run))):
+        yield row_clip(row, f"motionaug run {run.name}", {})
 
 
 def merge_clips(base: str | Path, extra: Iterable[MotionClip], out: str | Path) -> dict[str, int]:

@@ -27,7 +27,7 @@ from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.io import atomic_write_text
 from motionaug.augment.motion.features import Normalizer, compute_mean_std
 from motionaug.augment.outputs.run_dir import RunDir
-from motionaug.augment.outputs.shards import iter_shard_rows, row_captions, row_motion
+from motionaug.augment.outputs.shards import iter_shard_rows, row_clip
 from motionaug.augment.outputs.verify import verified_shards
 from motionaug.schemas.errors import MotionDataError
 
@@ -91,17 +91,7 @@ class _Collector:
                 continue
             self.splits["train"].append(row["output_id"])
             self.summary.stylized += 1
-            meta = {"split": "train", "source_id": row["source_id"], "method": row["method"], "run_id": self.run_id}
-            yield MotionClip(
-                row["output_id"],
-                row_motion(row),
-                row_captions(row),
-                fps=float(np.float32(row["fps"])),
-                content=row["content"],
-                style=row["style"],
-                source=f"motionaug:{self.run_id}",
-                meta=meta,
-            )
+            yield row_clip(row, f"motionaug:{self.run_id}", {"run_id": self.run_id})
 
     def _score(self, row: dict) -> float:
         if self.evaluated is not None:

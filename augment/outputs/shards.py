@@ -15,6 +15,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.io import atomic_path, fsync_dir, fsync_tree
 from motionaug.augment.methods.base import TransferOutput
 from motionaug.augment.outputs.checksums import sha256_file
@@ -101,3 +102,17 @@ def row_motion(row: dict) -> np.ndarray:
 
 def row_captions(row: dict, key: str = "captions") -> list[Caption]:
     return [Caption(**c) for c in row[key]]
+
+
+def row_clip(row: dict, source: str, meta: dict) -> MotionClip:
+    """A stylized row as a train clip of a corpus (export, expansion)."""
+    return MotionClip(
+        row["output_id"],
+        row_motion(row),
+        row_captions(row),
+        fps=float(np.float32(row["fps"])),
+        content=row["content"],
+        style=row["style"],
+        source=source,
+        meta={"split": "train", "source_id": row["source_id"], "method": row["method"]} | meta,
+    )
