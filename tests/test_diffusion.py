@@ -13,6 +13,7 @@ from motionaug.augment.diffusion import (
     InpaintSpec,
     NoiseSchedule,
     SamplerStep,
+    contrast_guided,
     cosine_betas,
     ddim_path,
     ddim_sample,
@@ -278,6 +279,19 @@ def test_cfg_scale_one_is_conditional_and_zero_unconditional() -> None:
     strong = ddim_sample(model, (B, T, D), guidance_scale=3.0, generator=gen(19), dtype=torch.float64)
     assert torch.allclose(plain, guided, atol=1e-9)
     assert not torch.allclose(plain, strong, atol=1e-3)
+
+
+def test_contrast_guidance_extrapolates_from_the_reference() -> None:
+    tuned, base = SmoothDenoiser(), SmoothDenoiser()
+    base.cond_bias = -base.cond_bias
+    x = torch.randn(B, T, D, generator=gen(22), dtype=torch.float64)
+    t = torch.full((B,), 300)
+    assert torch.allclose(contrast_guided(tuned, base, 1.0)(x, t), tuned(x, t), atol=1e-12)
+    assert torch.allclose(contrast_guided(tuned, base, 0.0)(x, t), base(x, t), atol=1e-12)
+    expected = base(x, t) + 2.0 * (tuned(x, t) - base(x, t))
+    assert torch.allclose(contrast_guided(tuned, base, 2.0)(x, t), expected, atol=1e-12)
+    unconditional = contrast_guided(tuned, base, 2.0)(x, t, uncond=True)  # both sides lose their condition
+    assert torch.allclose(unconditional, tuned(x, t, uncond=True), atol=1e-12)
 
 
 # ---------------------------------------------------------------- loss and differentiable path

@@ -35,6 +35,7 @@ from motionaug.augment.methods.onthefly import (
     trajectory_channels,
 )
 from motionaug.augment.motion.features import compute_mean_std
+from motionaug.augment.motion.foot_lock import lock_feet
 from motionaug.augment.motion.tempo import retime
 from motionaug.augment.outputs.checksums import RUN_FACTS
 from motionaug.augment.synth import sample_spec
@@ -145,6 +146,8 @@ def test_params_reject_bad_values_naming_the_field() -> None:
         parse_params(ema_decay=1.0)
     with pytest.raises(MotionDataError, match="lora_targets"):
         parse_params(lora_rank=4, lora_targets=[])
+    with pytest.raises(MotionDataError, match="style_guidance"):
+        parse_params(style_guidance=0.0)
 
 
 def test_trajectory_channels_are_the_root_blocks() -> None:
@@ -203,6 +206,40 @@ def test_transfer_moves_content_toward_the_example(base: BaseModels, clips: dict
     np.testing.assert_array_equal(out.motion[:, :3], content.motion[:, :3])  # the content's path is kept
     assert {"style_score", "content_score", "foot_skating"} <= set(out.scores)
     assert any("proud" in c.text for c in out.captions)
+
+
+def test_style_guidance_contrasts_the_tuned_model_with_the_base_prior(
+    base: BaseModels, clips: dict[str, MotionClip]
+) -> None:
+    """w = 1 is the tuned model alone; w = 0 is the base prior alone (the same whatever the fine-tune learnt)."""
+    example, content = clips["proud_walk"], clips["proud_walk_neutral"]
+
+    def transfer(max_steps: int, w: float | None) -> np.ndarray:
+        method = OnTheFlyMethod(
+            parse_params(FAST, lambda_s=0.0, max_steps=max_steps, lr=2e-3), text_encoder=HashTextEncoder()
+        )
+        model, _, _, _ = method.fit(proud_spec(), [example], base, corpus=[])
+        model.params = model.params.model_copy(update={"style_guidance": w})  # a transfer-time knob
+        (out,) = model.transfer([content])
+        assert isinstance(out, TransferOutput)
+        np.testing.assert_array_equal(out.motion[:, :3], content.motion[:, :3])  # the path is kept
+        return out.motion
+
+    plain = transfer(20, None)
+    np.testing.assert_allclose(transfer(20, 1.0), plain, atol=1e-6)
+    assert not np.allclose(transfer(20, 1.5), plain, atol=1e-3)
+    np.testing.assert_allclose(transfer(2, 0.0), transfer(20, 0.0), atol=1e-5)
+
+
+def test_foot_lock_rewrites_only_the_root_path_of_the_output(base: BaseModels, clips: dict[str, MotionClip]) -> None:
+    method = OnTheFlyMethod(parse_params(FAST, lambda_s=0.0, max_steps=2), text_encoder=HashTextEncoder())
+    model, _, _, _ = method.fit(proud_spec(), [clips["proud_walk"]], base, corpus=[])
+    (plain,) = model.transfer([clips["walk"]])
+    model.params = model.params.model_copy(update={"foot_lock": True})
+    (locked,) = model.transfer([clips["walk"]])
+    assert isinstance(plain, TransferOutput) and isinstance(locked, TransferOutput)
+    np.testing.assert_array_equal(locked.motion, lock_feet(plain.motion))  # the post-process, nothing else
+    np.testing.assert_array_equal(locked.motion[:, 4:193], plain.motion[:, 4:193])  # poses untouched
 
 
 def test_inpaint_feet_keeps_the_contents_foot_contacts(base: BaseModels, clips: dict[str, MotionClip]) -> None:

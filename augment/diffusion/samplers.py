@@ -84,6 +84,21 @@ def bind_model(model: nn.Module, cond: Tensor | dict[str, Tensor] | None, mask: 
     return model_fn
 
 
+def contrast_guided(primary: DenoiseFn, reference: DenoiseFn, scale: float) -> DenoiseFn:
+    """``reference + scale (primary - reference)``: guidance by the contrast of two denoisers.
+
+    Classifier-free guidance contrasts one network with and without its condition; this contrasts two networks (a
+    fine-tuned model and the model it was tuned from, each with its own condition), so ``scale > 1`` extrapolates
+    along what the fine-tune changed. ``scale == 1`` is ``primary`` alone.
+    """
+
+    def model_fn(x_t: Tensor, t: Tensor, *, uncond: bool = False) -> Tensor:
+        ref = reference(x_t, t, uncond=uncond)
+        return ref + scale * (primary(x_t, t, uncond=uncond) - ref)
+
+    return model_fn
+
+
 def guided_x0(model_fn: DenoiseFn, x_t: Tensor, t: Tensor, guidance_scale: float | None) -> Tensor:
     """x0 prediction, with classifier-free guidance x0_u + s (x0_c - x0_u) when a scale is given (MDM cfg_sampler)."""
     x0_cond = model_fn(x_t, t)

@@ -19,7 +19,7 @@ from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.corpus.rejects import Reject
 from motionaug.augment.corpus.style_examples import check_motion
 from motionaug.augment.device import bf16_autocast
-from motionaug.augment.diffusion import bind_model, ddim_sample, start_step_for
+from motionaug.augment.diffusion import DenoiseFn, bind_model, contrast_guided, ddim_sample, start_step_for
 from motionaug.augment.methods.base import TransferOutput
 from motionaug.augment.methods.common import (
     MotionBatch,
@@ -38,6 +38,7 @@ from motionaug.augment.methods.common import (
 )
 from motionaug.augment.methods.onthefly.pairs import kept_channels, neutral_twins
 from motionaug.augment.methods.onthefly.params import OnTheFlyParams
+from motionaug.augment.motion.foot_lock import lock_feet
 from motionaug.augment.motion.tempo import retime_captions
 from motionaug.augment.training.base_models import BaseModels
 from motionaug.schemas.captions import Caption
@@ -124,6 +125,17 @@ class OnTheFlyModel:
         keep = torch.tensor([j.styled for j in jobs], device=self.device)[:, None, None] & batch.mask[..., None]
         return MotionBatch(torch.where(keep, twins, batch.x), batch.mask, batch.lengths)
 
+    def _denoiser(self, jobs: Sequence[_Job], cond: Tensor, mask: Tensor) -> DenoiseFn:
+        """The tuned model on the revised captions; with ``style_guidance`` w, contrasted with the base prior on
+        the neutral captions (w > 1 extrapolates the style the fine-tune added)."""
+        tuned = bind_model(self.model, cond, mask)
+        w = self.params.style_guidance
+        if w is None or w == 1.0:
+            return tuned
+        neutral = [neutral_text(caption_text(j.clip), self.vocab) for j in jobs]
+        reference = bind_model(self.base.prior, self.base.text_encoder.encode(neutral).to(self.device), mask)
+        return contrast_guided(tuned, reference, w)
+
     def _transfer_batch(self, jobs: Sequence[_Job], seed: int) -> list[TransferOutput]:
         content = self._content(jobs, seed)
         cond = self.base.text_encoder.encode([j.captions[0].text for j in jobs]).to(self.device)
@@ -131,7 +143,7 @@ class OnTheFlyModel:
         noise = clip_noise(content.x.shape, [j.clip.id for j in jobs], seed)  # CPU: the same on every device
         with torch.no_grad(), bf16_autocast(self.params.bf16, self.device):
             out = ddim_sample(
-                bind_model(self.model, cond, content.mask),
+                self._denoiser(jobs, cond, content.mask),
                 content.x.shape,
                 steps=self.params.ddim_steps,
                 start_step=n_run,
@@ -151,6 +163,8 @@ class OnTheFlyModel:
 
     def _output(self, job: _Job, out: Tensor, scores: dict[str, float]) -> TransferOutput:
         motion = output_motion(self.base, out, job.motion, kept_channels(self.params))
+        if self.params.foot_lock:
+            motion = lock_feet(motion)
         return TransferOutput(
             source_id=job.clip.id, style=self.style, motion=motion, captions=job.captions, scores=scores
         )

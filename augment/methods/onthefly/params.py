@@ -33,11 +33,22 @@ class OnTheFlyParams(BaseModel):
     )
     ddim_steps: int = Field(20, description="S: DDIM steps of the whole process (K=300 of 1000 runs 6 of 20).")
     transfer_guidance_scale: float | None = None
+    style_guidance: float | None = Field(
+        None,
+        description="w: transfer with x0 = x0_base + w (x0_tuned - x0_base), the base prior on the content's neutral "
+        "caption, the tuned model on the revised one (augment.diffusion.contrast_guided); above 1 pushes further "
+        "along what the fine-tune learnt, for subtle styles; None = the tuned model alone (the paper).",
+    )
     trajectory: Literal["horizontal", "root"] = Field(
         "horizontal", description="Inpainted channels: root rotation + linear velocity, or also the root height."
     )
     inpaint_feet: bool = Field(
         False, description="Also inpaint the foot-contact channels (pairs and transfer keep the gait's phase)."
+    )
+    foot_lock: bool = Field(
+        False,
+        description="Correct each output's root steps so a planted toe does not slide (augment.motion.foot_lock): "
+        "the body travels what its stylized legs walk, so the content's path is no longer kept exactly.",
     )
     lambda_rec: float = 1.0
     lambda_s: float = 0.1
@@ -120,6 +131,8 @@ def validate_params(params: OnTheFlyParams, num_timesteps: int = NUM_TRAIN_TIMES
         raise _fail("lambda_rec", "lambda_rec and lambda_s are both 0: nothing to learn")
     if params.max_steps is not None and params.max_steps < 1:
         raise _fail("max_steps", f"must be >= 1, got {params.max_steps}")
+    if params.style_guidance is not None and params.style_guidance <= 0:
+        raise _fail("style_guidance", f"must be > 0 or null, got {params.style_guidance}")
     if params.lora_rank < 0:
         raise _fail("lora_rank", f"must be >= 0, got {params.lora_rank}")
     if params.ema_decay is not None and not 0.0 < params.ema_decay < 1.0:

@@ -1,0 +1,66 @@
+"""Foot locking: a planted toe stops sliding, poses stay, and the velocity channels stay consistent."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from motionaug.augment.eval.metrics import foot_skating_ratio
+from motionaug.augment.motion.features import feature_slices, recover_from_ric, recover_root_rot_pos
+from motionaug.augment.motion.foot_lock import lock_feet
+from motionaug.schemas.skeleton import T2M
+
+CLIP = Path(__file__).resolve().parent / "fixtures" / "humanml3d" / "new_joint_vecs" / "012314.npy"
+BLOCKS = feature_slices(T2M)
+
+
+def joints(features: np.ndarray) -> np.ndarray:
+    return recover_from_ric(torch.as_tensor(features, dtype=torch.float64), T2M.n_joints).numpy()
+
+
+def skating(features: np.ndarray) -> float:
+    return foot_skating_ratio(joints(features), T2M, 20.0)
+
+
+def sliding_clip() -> np.ndarray:
+    """The dataset clip with its root path stretched: the path no longer matches the legs."""
+    features = np.load(CLIP).astype(np.float32)
+    features[:, BLOCKS["root_lin_vel"]] *= 1.8
+    return features
+
+
+def test_planted_toe_stops_sliding() -> None:
+    features = sliding_clip()
+    locked = lock_feet(features)
+    assert locked.dtype == features.dtype and locked.shape == features.shape
+    assert skating(locked) < 0.5 * skating(features)
+    pos = joints(locked)
+    toes = pos[:, [T2M.feet_left[1], T2M.feet_right[1]]]
+    planted = (toes[1:, :, 1] < 0.05) & (toes[:-1, :, 1] < 0.05)
+    slide = np.linalg.norm((toes[1:] - toes[:-1])[..., [0, 2]], axis=-1)
+    held = np.where(planted.all(-1), slide.min(-1), np.where(planted[:, 0], slide[:, 0], slide[:, 1]))
+    assert held[planted.any(-1)].max() < 1e-4  # the held toe of every planted transition stays put
+
+
+def test_poses_are_untouched_and_local_velocities_follow_the_new_path() -> None:
+    features = sliding_clip()
+    locked = lock_feet(features)
+    for block in ("root_rot_vel", "root_y", "ric", "rot", "feet"):
+        np.testing.assert_array_equal(locked[:, BLOCKS[block]], features[:, BLOCKS[block]])
+    shift = (locked - features)[:-1, BLOCKS["local_vel"]].reshape(len(features) - 1, T2M.n_joints, 3)
+    np.testing.assert_allclose(shift, np.broadcast_to(shift[:, :1], shift.shape), atol=1e-6)  # every joint alike
+
+    def root_steps(f: np.ndarray) -> np.ndarray:
+        return np.diff(recover_root_rot_pos(torch.as_tensor(f, dtype=torch.float64))[1].numpy(), axis=0)
+
+    moved = root_steps(locked) - root_steps(features)  # the world-frame change of each root step
+    np.testing.assert_allclose(np.linalg.norm(shift[:, 0], axis=-1), np.linalg.norm(moved, axis=-1), atol=1e-5)
+    assert np.abs(moved).max() > 0.01  # the stretched path was corrected
+
+
+def test_a_clip_whose_feet_do_not_slide_keeps_its_planted_toes_still() -> None:
+    features = np.load(CLIP).astype(np.float32)
+    assert skating(lock_feet(features)) <= skating(features) + 1e-9
+    assert lock_feet(features[:1]).shape == (1, features.shape[1])
