@@ -1,9 +1,11 @@
 """The on-the-fly paper's Bandai-2 protocol (sec. 4.2, Table 2) on held-out takes, scored per style.
 
 Usage: python bench/bench_bandai2.py --corpus BANDAI2 --base BASE --work WORK [--split test|val]
-       [--method onthefly|stats] [--params JSON] [--examples 1] [--set key=value ...]
+       [--method onthefly|stats] [--params JSON] [--examples 1] [--set key=value ...] [--guidance 1.5,2]
+       [--foot-lock]
 
-``BANDAI2``: ``motionaug corpus import-bvh ../shared/data/bandai/dataset-2 --out BANDAI2 --max-frames 196 --mean-std``;
+``BANDAI2``: ``motionaug corpus import-bvh ../shared/data/bandai/dataset-2 --out BANDAI2 --max-frames 196
+--val-takes 3 --test-takes 3 --mean-std``;
 ``BASE``: ``motionaug pretrain --corpus BANDAI2 --out BASE`` (prior, encoder and evaluators fit on the train split).
 
 Runs ``configs/bandai2-<method>.yaml`` through ``motionaug run`` (every ``normal`` clip of ``--split`` into each of the
@@ -16,6 +18,9 @@ evaluators, which never saw a ``--split`` take:
   distance between real ``--split`` and real train takes of the style at that count (the floor a transfer can reach);
 - foot skating of the outputs against the real ``--split`` takes of the style;
 - prepare (fine-tune) seconds per style, from the run's artefact markers.
+``--guidance``: the same sources transferred again from the run's artefacts at each ``style_guidance`` and scored
+the same way (a transfer-time knob: the sweep needs no new fine-tune). ``--foot-lock``: every set scored again after
+the ``foot_lock`` post-process.
 The mean is over the 6 styles other than ``normal``. Prints a Markdown table and writes ``WORK/<method>-<split>.json``.
 """
 
@@ -37,6 +42,8 @@ from motionaug.augment.corpus import Corpus
 from motionaug.augment.eval.evaluation import classify, load_classifiers
 from motionaug.augment.eval.inputs import features_to_joints
 from motionaug.augment.eval.metrics import foot_skating_ratio, frechet_distance
+from motionaug.augment.methods.base import TransferOutput
+from motionaug.augment.motion.foot_lock import lock_feet
 from motionaug.augment.outputs.run_dir import RunDir
 from motionaug.augment.outputs.shards import iter_shard_rows, row_motion
 from motionaug.schemas.run_config import load_run_config
@@ -120,21 +127,53 @@ def run_protocol(args: argparse.Namespace) -> Path:
     return out
 
 
-def score(run_dir: Path, args: argparse.Namespace) -> dict[str, Any]:
+Outputs = dict[str, list[tuple[str, np.ndarray]]]
+"""Per target style: (source clip id, output features) of every transfer."""
+
+
+def run_outputs(run_dir: Path) -> Outputs:
+    by_style: Outputs = defaultdict(list)
+    for row in iter_shard_rows(run_dir, columns=["source_id", "style", "motion", "n_frames", "n_feats"]):
+        by_style[row["style"]].append((row["source_id"], row_motion(row)))
+    return by_style
+
+
+def guided_outputs(run_dir: Path, args: argparse.Namespace, scale: float) -> Outputs:
+    """The run's held-out sources transferred again from the run's own artefacts, with ``style_guidance`` = scale
+    (a transfer-time knob: the fine-tuned weights are the run's, so a sweep costs transfers only)."""
+    from motionaug.augment.methods.registry import create_method
+
+    run = RunDir(run_dir)
+    config = run.config()
+    method = create_method(config["method"]["name"], config["method"]["params"])
+    sources = real_takes(args.corpus, args.split)[NEUTRAL]
+    trained = Path(config["base_models"]["path"])
+    by_style: Outputs = defaultdict(list)
+    for style in run.styles():
+        model = method.load(run.artifact_dir(style), trained)
+        model.params = model.params.model_copy(update={**json.loads(args.transfer_params), "style_guidance": scale})
+        for out in model.transfer(sources, seed=args.seed):
+            if isinstance(out, TransferOutput):
+                by_style[style].append((out.source_id, out.motion))
+    return by_style
+
+
+def score(
+    run_dir: Path, args: argparse.Namespace, by_style: Outputs | None = None, foot_lock: bool = False
+) -> dict[str, Any]:
+    """Score ``by_style`` (default: the run's shards) with the held-out evaluators, per style and over 6;
+    ``foot_lock``: after ``augment.motion.foot_lock.lock_feet`` (the method's ``foot_lock`` post-process)."""
     torch.set_num_threads(args.threads)
+    by_style = run_outputs(run_dir) if by_style is None else by_style
     judges = load_classifiers(args.base)
     held_out = real_takes(args.corpus, args.split)
     train = real_takes(args.corpus, "train")
     sources = {c.id: c for c in held_out[NEUTRAL]}
-    by_style: dict[str, list[tuple[str, np.ndarray]]] = defaultdict(list)
-    for row in iter_shard_rows(run_dir, columns=["source_id", "style", "motion", "n_frames", "n_feats"]):
-        by_style[row["style"]].append((row["source_id"], joints_of(row_motion(row))))
-    run = RunDir(run_dir)
-    manifest = run.manifest()
+    manifest = RunDir(run_dir).manifest()
     rows: dict[str, dict[str, Any]] = {}
     for style in sorted(by_style):
         outputs = by_style[style]
-        joints = [j for _, j in outputs]
+        joints = [joints_of(lock_feet(m) if foot_lock else m) for _, m in outputs]
         content_probs, content_feats = classify(judges.content, joints)
         style_probs, _ = classify(judges.style, joints)
         contents = [sources[s].content for s, _ in outputs]
@@ -146,23 +185,14 @@ def score(run_dir: Path, args: argparse.Namespace) -> dict[str, Any]:
         fmd, n_fmd = matched_fmd(content_feats, real_feats, args.seed)
         floor, _ = matched_fmd(train_feats, real_feats, args.seed)
         marker = manifest.artifacts.get(style)
+        counts = np.bincount(style_probs.argmax(1), minlength=len(judges.style_labels))
         rows[style] = {
             "clips": len(outputs),
             "cra": cra_hits / len(outputs),
             "cra_95": wilson(cra_hits, len(outputs)),
             "sra": sra_hits / len(outputs),
             "sra_95": wilson(sra_hits, len(outputs)),
-            "predicted_styles": dict(
-                sorted(
-                    {
-                        lab: int(n)
-                        for lab, n in zip(
-                            judges.style_labels, np.bincount(style_probs.argmax(1), minlength=len(judges.style_labels))
-                        )
-                        if n
-                    }.items()
-                )
-            ),
+            "predicted_styles": {lab: int(n) for lab, n in sorted(zip(judges.style_labels, counts)) if n},
             "fmd": fmd,
             "fmd_real_train_vs_held_out": floor,
             "fmd_samples": n_fmd,
@@ -182,6 +212,7 @@ def score(run_dir: Path, args: argparse.Namespace) -> dict[str, Any]:
         "mean_over_6": mean,
         "transfer_s": manifest.stages["transfer"].seconds,
         "evaluators": str(args.base),
+        "foot_lock_in_scoring": foot_lock,
     }
 
 
@@ -220,6 +251,20 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--score-only", action="store_true", help="score the existing run folder")
+    parser.add_argument(
+        "--transfer-params", default="{}", help="JSON of transfer-time params for the --guidance re-transfers"
+    )
+    parser.add_argument(
+        "--foot-lock",
+        action="store_true",
+        help="also score every output after the foot_lock post-process (WORK/<name>-locked.json)",
+    )
+    parser.add_argument(
+        "--guidance",
+        default="",
+        help="comma-separated style_guidance values: re-transfer the run's sources from its artefacts with each "
+        "and score them too (WORK/<method>-<split>-w<value>.json)",
+    )
     args = parser.parse_args(argv)
     args.corpus, args.base, args.work = args.corpus.resolve(), args.base.resolve(), args.work.resolve()
     args.work.mkdir(parents=True, exist_ok=True)
@@ -227,6 +272,20 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     result = score(run_dir, args)
     (args.work / f"{args.method}-{args.split}.json").write_text(json.dumps(result, indent=1) + "\n")
     print(table(result))
+    if args.foot_lock:
+        locked = score(run_dir, args, foot_lock=True)
+        (args.work / f"{args.method}-{args.split}-locked.json").write_text(json.dumps(locked, indent=1) + "\n")
+        print("\nwith foot_lock\n" + table(locked))
+    for value in filter(None, args.guidance.split(",")):
+        outputs = guided_outputs(run_dir, args, float(value))
+        for lock in (False, True) if args.foot_lock else (False,):
+            guided = score(run_dir, args, outputs, foot_lock=lock)
+            guided["style_guidance"] = float(value)
+            guided["transfer_params"] = json.loads(args.transfer_params)
+            tag = "".join(f"-{k}={v}" for k, v in sorted(json.loads(args.transfer_params).items()))
+            name = f"{args.method}-{args.split}-w{value}{tag}{'-locked' if lock else ''}"
+            (args.work / f"{name}.json").write_text(json.dumps(guided, indent=1) + "\n")
+            print(f"\nstyle_guidance {value}{', foot_lock' if lock else ''}\n" + table(guided))
     return result
 
 

@@ -98,6 +98,12 @@ class CorpusConfig(_Strict):
     format: Literal["auto", "humanml3d", "parquet"] = "auto"
     split: str | None = Field(default=None, description="HumanML3D split file to read (default: all.txt).")
     filters: CorpusFilters = Field(default_factory=CorpusFilters)
+    pool_split: str | None = Field(
+        default=None,
+        description="Split file the method's content pool (the clips its prepare learns from, e.g. on-the-fly's "
+        "L_s) is drawn from, through the same filters; default: the run's own clips. A benchmark that scores "
+        "held-out clips sets it to the train split, so that no method trains on a scored clip.",
+    )
 
 
 class MethodConfig(_Strict):

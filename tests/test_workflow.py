@@ -270,3 +270,27 @@ def test_the_learning_pool_does_not_depend_on_the_unit_size(corpus: Path, tmp_pa
     assert [len(u.ids) for u in plans[0].units] != [len(u.ids) for u in plans[1].units]
     assert plans[0].pool == plans[1].pool and len(plans[0].pool) == min(method.content_pool, plans[0].n_clips)
     assert set(plans[0].pool) <= {i for u in plans[0].units for i in u.ids}
+
+
+def test_a_pool_split_keeps_the_methods_learning_clips_out_of_the_scored_ones(corpus: Path, tmp_path: Path) -> None:
+    """``corpus.pool_split``: the pool comes from that split (through the same filters), never from the run's."""
+    from motionaug.augment.corpus import Corpus
+    from motionaug.augment.methods.registry import create_method
+    from motionaug.workflows.pipeline import PlanStage
+
+    method = create_method("onthefly", {})
+    data = {**config_dict(corpus, tmp_path / "run"), "method": {"name": "onthefly"}}
+    data["corpus"] = {
+        "path": str(corpus),
+        "split": "test",
+        "pool_split": "train",
+        "filters": {"source_styles": ["neutral"]},
+    }
+    plan = PlanStage(load_run_config(None, data=data), method).run("plan")
+    train = {c.id: c for c in Corpus(corpus, split="train")}
+    scored = {i for u in plan.units for i in u.ids}
+    assert plan.pool and not set(plan.pool) & scored
+    assert all(i in train and train[i].style == "neutral" for i in plan.pool)
+    assert len(plan.pool) == min(method.content_pool, sum(c.style == "neutral" for c in train.values()))
+    again = PlanStage(load_run_config(None, data=data), method).run("plan")
+    assert again.pool == plan.pool  # seeded

@@ -236,6 +236,17 @@ class PlanStage(Stage):
                     reason = f"clip id {example.source!r} is not in the corpus (nor a .npy/.bvh file)"
                     raise MotionDataError(where, reason)
 
+    def _pool(self, chosen: list[tuple[str, str, str | None]], order: np.ndarray) -> list[tuple[str, str, str | None]]:
+        """The first ``pool_size`` clips of the seeded order, whatever the unit size (the units cut the same order,
+        so at unit_size == pool_size the pool is unit 0); with ``corpus.pool_split``, of that split's clips."""
+        split = self.config.corpus.pool_split
+        if split is None or split == self.config.corpus.split:
+            return sorted(chosen[int(i)] for i in order[: self.pool_size])
+        corpus = Corpus(self.config.corpus.path, split=split)
+        others = sorted((c.id, f, split) for c, f in corpus.with_files() if keep_clip(c, self.config))
+        drawn = np.random.default_rng(derive_seed("pool", self.config.seed)).permutation(len(others))
+        return sorted(others[int(i)] for i in drawn[: self.pool_size])
+
     def _units(self, chosen: list[tuple[str, str, str | None]], n_rejects: int) -> Plan:
         config = self.config
         order = np.random.default_rng(derive_seed("plan", config.seed)).permutation(len(chosen))
@@ -250,9 +261,7 @@ class PlanStage(Stage):
                 for style in styles_for(clip_id, style_names, config.fan_out.per_clip, config.fan_out.seed):
                     per_style[style].append(clip_id)
             units.append(PlanUnit(unit=n, ids=ids, files=sorted({m[1] for m in members}), styles=per_style))
-        # the pool: the first ``pool_size`` clips of the seeded order, whatever the unit size (the units cut the same
-        # order, so at unit_size == pool_size the pool is unit 0)
-        pool = sorted(chosen[int(i)] for i in order[: self.pool_size])
+        pool = self._pool(chosen, order)
         return Plan(
             run_id=config.run_id(),
             n_clips=len(chosen),

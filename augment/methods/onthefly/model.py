@@ -127,14 +127,17 @@ class OnTheFlyModel:
 
     def _denoiser(self, jobs: Sequence[_Job], cond: Tensor, mask: Tensor) -> DenoiseFn:
         """The tuned model on the revised captions; with ``style_guidance`` w, contrasted with the base prior on
-        the neutral captions (w > 1 extrapolates the style the fine-tune added)."""
+        the neutral (or the same revised) captions: w > 1 extrapolates the style the fine-tune added."""
         tuned = bind_model(self.model, cond, mask)
         w = self.params.style_guidance
         if w is None or w == 1.0:
             return tuned
-        neutral = [neutral_text(caption_text(j.clip), self.vocab) for j in jobs]
-        reference = bind_model(self.base.prior, self.base.text_encoder.encode(neutral).to(self.device), mask)
-        return contrast_guided(tuned, reference, w)
+        if self.params.style_guidance_reference == "revised":
+            reference_cond = cond
+        else:
+            neutral = [neutral_text(caption_text(j.clip), self.vocab) for j in jobs]
+            reference_cond = self.base.text_encoder.encode(neutral).to(self.device)
+        return contrast_guided(tuned, bind_model(self.base.prior, reference_cond, mask), w)
 
     def _transfer_batch(self, jobs: Sequence[_Job], seed: int) -> list[TransferOutput]:
         content = self._content(jobs, seed)

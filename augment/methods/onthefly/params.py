@@ -33,6 +33,11 @@ class OnTheFlyParams(BaseModel):
     )
     ddim_steps: int = Field(20, description="S: DDIM steps of the whole process (K=300 of 1000 runs 6 of 20).")
     transfer_guidance_scale: float | None = None
+    style_guidance_reference: Literal["neutral", "revised"] = Field(
+        "neutral",
+        description="The base prior's caption in style_guidance: the content's neutral caption (the contrast holds "
+        "the fine-tune and the caption's style words) or the same revised caption (the fine-tune alone).",
+    )
     style_guidance: float | None = Field(
         None,
         description="w: transfer with x0 = x0_base + w (x0_tuned - x0_base), the base prior on the content's neutral "
