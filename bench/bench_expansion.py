@@ -135,6 +135,15 @@ def missing_styles(args: argparse.Namespace) -> list[str]:
     return list(SYNTH_MISSING) if args.protocol == "synthetic" else [s for s in style_words(args) if s != "normal"]
 
 
+def description(example: dict[str, str], words: Any) -> str:
+    """The example's caption when it names the style in the run's words, else a walk described with them (a
+    Bandai caption may say "energetic" where the run's words for `active` are "in a lively manner")."""
+    terms = [t for t in (words.adjective, words.adverb, *words.phrases) if t]
+    if any(t in example["description"] for t in terms):
+        return example["description"]
+    return f"a person walks forward {words.phrases[0] if words.phrases else words.adverb}"
+
+
 def run_config(args: argparse.Namespace, work: Path, split: StyleSplit, method: str) -> dict[str, Any]:
     """A ``motionaug run`` config that stylizes A's ``expand`` clips into every missing style from one example each."""
     words = style_words(args)
@@ -142,7 +151,7 @@ def run_config(args: argparse.Namespace, work: Path, split: StyleSplit, method: 
         {
             "name": style,
             "words": words[style].model_dump(exclude_none=True, mode="json"),
-            "examples": [{"source": str(work / "split" / ex["path"]), "description": ex["description"]}],
+            "examples": [{"source": str(work / "split" / ex["path"]), "description": description(ex, words[style])}],
         }
         for style, ex in split.examples.items()
     ]
