@@ -113,6 +113,19 @@ def run_protocol(args: argparse.Namespace) -> Path:
     if args.params:
         params = {**config.method.params, **json.loads(args.params)}
         config = config.model_copy(update={"method": config.method.model_copy(update={"params": params})})
+    if args.example_content != "walk":
+        verb = CONTENT_VERBS[args.example_content]
+        styles = []
+        for style in config.styles:
+            first = style.examples[0]
+            source = take_id(args.corpus, f"dataset-2_{args.example_content}_{style.name}_001", 1)
+            described = first.description.replace("walks forward", verb)
+            styles.append(
+                style.model_copy(
+                    update={"examples": [first.model_copy(update={"source": source, "description": described})]}
+                )
+            )
+        config = config.model_copy(update={"styles": styles})
     if args.examples > 1:
         styles = []
         for style in config.styles:
@@ -126,6 +139,20 @@ def run_protocol(args: argparse.Namespace) -> Path:
     execute_run(config)
     return out
 
+
+CONTENT_VERBS = {
+    "walk": "walks forward",
+    "run": "runs forward",
+    "walk-turn-left": "walks and turns left",
+    "walk-turn-right": "walks and turns right",
+    "raise-up-both-hands": "raises both hands",
+    "raise-up-left-hand": "raises the left hand",
+    "raise-up-right-hand": "raises the right hand",
+    "wave-both-hands": "waves both hands",
+    "wave-left-hand": "waves the left hand",
+    "wave-right-hand": "waves the right hand",
+}
+"""How an example of each Bandai-2 content is described (``--example-content``)."""
 
 Outputs = dict[str, list[tuple[str, np.ndarray]]]
 """Per target style: (source clip id, output features) of every transfer."""
@@ -247,6 +274,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--method", default="onthefly")
     parser.add_argument("--params", default="", help="JSON merged into the config's method params")
     parser.add_argument("--examples", type=int, default=1, help="example takes per style (001, 002, ...)")
+    parser.add_argument(
+        "--example-content", default="walk", choices=sorted(CONTENT_VERBS), help="content of the example takes"
+    )
     parser.add_argument("--set", action="append", default=[], help="run-config override key=value")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0)
