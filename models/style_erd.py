@@ -7,13 +7,16 @@ Motion Style Transfer"; "supp. A" is its implementation-details appendix.
 - ``Recurrent``   (sec. 3.1) neutral LSTM branch r_0 plus one residual LSTM branch per non-neutral style,
                   ``z'_t = r_0(z_t) + r_S(z_t)``, with learned initial states (r_0's chosen by content, one per
                   style branch) and sec. 4.4 blending/intensity as a mixture over the styles.
-- ``Decoder``     (sec. 3.1) four MLP layers conditioned on the target style, back to one frame.
+- ``Decoder``     (sec. 3.1) four MLP layers conditioned on the target style, back to one frame; with
+                  ``residual_output`` (default, not in the paper) it emits an offset added to the input frame and
+                  also sees the source style and content (see ``StyleErdConfig.residual_output``).
 - ``ErdNetwork``  the generator: ``forward`` runs whole sequences (one C++ LSTM call per branch), ``step``
                   runs one frame with an explicit ``ErdState``; the two agree to float rounding.
 - ``FtAttDiscriminator`` (sec. 3.1, Eq. 1) 1-D temporal convs over a window of positions and velocities,
                   feature x temporal attention from the style and content labels.
 - ``ContentClassifier``  (sec. 3.1 "content supervision") temporal convs with instance norm; its feature maps
                   are the phi of the perceptual loss (Eq. 7).
+- ``StyleClassifier``    optional style supervision (not in the paper), frozen like D_C.
 
 Frames are HumanML3D 263-d features *normalised* by the corpus Mean/Std that the network carries as buffers
 (``mean``/``std``); ``ErdNetwork.normalize`` / ``denormalize`` convert. Style index 0 is always ``neutral``
@@ -54,6 +57,13 @@ class StyleErdConfig:
     cls_channels: tuple[int, int] = (96, 64)  # the content classifier "follows the same convolution layers"
     kernel: int = 3
     att_hidden: int = 64  # MLP width of the attention branches
+    # Output skip: x'_t = x_t + D(z'_t, S_hat). Not in the paper (its decoder emits the frame itself). At a CPU
+    # budget of a few thousand steps the 32-d bottleneck and six stacked LSTMs are far from reconstructing a
+    # frame, so the transfer has no content to keep (bench/RESULTS.md section 12). With the skip, E -> R -> D
+    # only learns the style *offset* of each frame: the paper's residual idea (z' = r_0 + r_S) at the output.
+    residual_output: bool = True
+    attention: bool = True  # FT-Att (Eq. 1); False: Table 1's "w/o attention", a multi-class critic
+    learned_init: bool = True  # learned initial states (sec. 3.1); False: zero states (Table 1 ablation)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "styles", tuple(self.styles))
@@ -210,6 +220,9 @@ class Recurrent(nn.Module):
         self.c0_neutral = nn.Parameter(torch.zeros(cfg.neutral_layers, cfg.n_contents, h))
         self.h0_style = nn.Parameter(torch.zeros(ls, nb, h))
         self.c0_style = nn.Parameter(torch.zeros(ls, nb, h))
+        if not cfg.learned_init:  # Table 1 "w/o learnt initial states": zero states, as [31]
+            for p in (self.h0_neutral, self.c0_neutral, self.h0_style, self.c0_style):
+                p.requires_grad_(False)
         self.register_buffer("zero_bias", torch.zeros(4 * h), persistent=False)
         self.reset_parameters()
 
@@ -328,17 +341,28 @@ class Recurrent(nn.Module):
 class Decoder(nn.Module):
     """D (sec. 3.1): ``[z'_t, S_hat] -> x'_t`` through four MLP layers with ReLU, conditioned on the target style.
 
+    With ``residual_output``: ``[z'_t, S_hat, S, C] -> x'_t - x_t``, the last layer zero at initialisation.
+
     The paper decodes rotations + velocities and gets positions by FK; HumanML3D frames carry positions
     (``ric``) themselves, so the decoder emits the whole 263-d frame.
     """
 
     def __init__(self, cfg: StyleErdConfig) -> None:
         super().__init__()
-        sizes = [cfg.latent + cfg.n_styles, *cfg.dec_hidden, cfg.frame_dim]
+        # With the output skip the offset depends on where the frame comes from as much as where it goes
+        # (S -> S is zero, neutral -> S is not) and on the content (an elderly walk and an elderly wave move
+        # differently from their neutral versions), so the decoder also sees the encoder's [source, content].
+        self.with_source = cfg.residual_output
+        extra = cfg.n_styles + cfg.n_contents if self.with_source else 0
+        sizes = [cfg.latent + cfg.n_styles + extra, *cfg.dec_hidden, cfg.frame_dim]
         self.layers = nn.ModuleList(nn.Linear(a, b) for a, b in zip(sizes[:-1], sizes[1:]))
+        if cfg.residual_output:  # start as the identity: the offset D(z', S_hat) is zero until trained
+            nn.init.zeros_(self.layers[-1].weight)
+            nn.init.zeros_(self.layers[-1].bias)
 
-    def forward(self, z: Tensor, target: Tensor) -> Tensor:
-        x = torch.cat([z, target], dim=-1)
+    def forward(self, z: Tensor, target: Tensor, source: Tensor | None = None) -> Tensor:
+        parts = [z, target, source] if self.with_source and source is not None else [z, target]
+        x = torch.cat(parts, dim=-1)
         last = len(self.layers) - 1
         for i, layer in enumerate(self.layers):
             x = F.linear(x, layer.weight, layer.bias)
@@ -436,15 +460,18 @@ class ErdNetwork(nn.Module):
         if target.dim() == 2:
             target = target[:, None].expand(batch, frames, -1)
         z, state = self.recurrent(z, state, target[..., 1:], skip_idle=skip_idle)
-        return self.decoder(z, target), state
+        y = self.decoder(z, target, cond)
+        return (x + y if self.config.residual_output else y), state
 
     def step(
         self, x: Tensor, state: ErdState, source: Tensor, content: Tensor, target: Tensor
     ) -> tuple[Tensor, ErdState]:
         """One frame ``x`` (B, D) normalised -> (B, D) normalised, and the next state."""
-        z = self.encoder(x, torch.cat([source, content], dim=-1))
+        cond = torch.cat([source, content], dim=-1)
+        z = self.encoder(x, cond)
         z, state = self.recurrent.step(z, state, target[:, 1:])
-        return self.decoder(z, target), state
+        y = self.decoder(z, target, cond)
+        return (x + y if self.config.residual_output else y), state
 
 
 # ---- critics --------------------------------------------------------------------------------------------
@@ -479,12 +506,16 @@ class FtAttDiscriminator(nn.Module):
         self.temporal_att = nn.Sequential(
             nn.Linear(cond, cfg.att_hidden), nn.LeakyReLU(0.2), nn.Linear(cfg.att_hidden, cfg.disc_window)
         )
+        # w/o attention (Table 1): the baseline of [1, 32], a shared conv trunk with one output head per style
+        self.style_heads = None if cfg.attention else nn.Linear(c2, cfg.n_styles)
 
     def forward(self, x: Tensor, style: Tensor, content: Tensor) -> Tensor:
         """``x`` (B, disc_window, D) normalised frames; ``style`` (B, n_styles); ``content`` (B, n_contents) -> (B,)."""
         if x.shape[1] != self.window:
             raise ValueError(f"discriminator window is {self.window} frames, got {x.shape[1]}")
         m = self.conv(x[..., self.channels].transpose(1, 2))  # m_s: (B, C', T')
+        if self.style_heads is not None:  # multi-class discriminator: the target style's head, averaged over time
+            return (self.style_heads(m.mean(dim=-1)) * style).sum(dim=-1)
         cond = torch.cat([style, content], dim=-1)
         w_f = torch.sigmoid(self.feature_att(cond))
         w_t = torch.sigmoid(self.temporal_att(cond))
@@ -520,3 +551,30 @@ class ContentClassifier(nn.Module):
     def forward(self, x: Tensor) -> Tensor:
         """Content logits (B, len(contents))."""
         return self.head(self.features(x).mean(dim=-1))
+
+
+class StyleClassifier(nn.Module):
+    """Style supervision (not in the paper): a style classifier on root-relative positions and velocities.
+
+    Trained before the GAN stage on real windows and then frozen, like D_C; the generator gets its
+    cross-entropy against the target style. No instance norm: the per-clip channel means and scales it would
+    remove are much of what a style is (posture, amplitude, speed).
+    """
+
+    def __init__(self, cfg: StyleErdConfig) -> None:
+        super().__init__()
+        groups = channel_groups(cfg.n_joints)
+        self.register_buffer("channels", torch.tensor(groups["pos"] + groups["vel"]), persistent=False)
+        c1, c2 = cfg.cls_channels
+        pad = cfg.kernel // 2
+        self.body = nn.Sequential(
+            nn.Conv1d(len(groups["pos"]) + len(groups["vel"]), c1, cfg.kernel, padding=pad),
+            nn.LeakyReLU(0.2),
+            nn.Conv1d(c1, c2, cfg.kernel, padding=pad),
+            nn.LeakyReLU(0.2),
+        )
+        self.head = nn.Linear(c2, cfg.n_styles)
+
+    def forward(self, x: Tensor) -> Tensor:
+        """(B, T, D) normalised frames -> style logits (B, n_styles)."""
+        return self.head(self.body(x[..., self.channels].transpose(1, 2)).mean(dim=-1))

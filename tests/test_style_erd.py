@@ -73,6 +73,8 @@ def clips():
 def make_net(clips, **sizes) -> ErdNetwork:
     torch.manual_seed(0)
     net = ErdNetwork(StyleErdConfig(styles=STYLES, contents=CONTENTS, **sizes))
+    # the output offset starts at zero (identity); give it weights, as training would
+    torch.nn.init.normal_(net.decoder.layers[-1].weight, std=0.1)
     norm = compute_mean_std(c.motion for c in clips)
     net.set_normalizer(torch.from_numpy(norm.mean), torch.from_numpy(norm.std))
     return net.eval()
@@ -248,8 +250,12 @@ def test_rederived_velocities_match_the_extractor(clips) -> None:
 
 
 def test_training_steps_lower_generator_and_critic_losses(clips) -> None:
-    """Each player's real update lowers its own loss on a fixed batch; a few full steps lower reconstruction."""
-    config = ErdTrainConfig(steps=1, classifier_steps=1, lr_generator=3e-3, lr_discriminator=3e-3, **TINY)
+    """Each player's real update lowers its own loss on a fixed batch; a few full steps lower reconstruction.
+
+    The paper's decoder (no output skip), whose reconstruction starts far from zero."""
+    config = ErdTrainConfig(
+        steps=1, classifier_steps=1, lr_generator=3e-3, lr_discriminator=3e-3, residual_output=False, **TINY
+    )
     torch.manual_seed(0)
     trainer = ErdTrainer(prepare_data(clips, config=config), config)
     batch = trainer.sample()
@@ -270,6 +276,41 @@ def test_training_steps_lower_generator_and_critic_losses(clips) -> None:
     for _ in range(4):
         trainer.train_step(batch)
     assert trainer.losses(batch)["rec"] < before["rec"]
+
+
+def test_style_supervision_lowers_moment_and_style_losses(clips) -> None:
+    """The shipped recipe: output skip (starts as the identity), neutral-heavy batches, moment + style losses."""
+    config = ErdTrainConfig(
+        steps=1, classifier_steps=20, lr_generator=3e-3, neutral_share=0.5, w_moments=1.0, w_style=0.5, **TINY
+    )
+    torch.manual_seed(0)
+    trainer = ErdTrainer(prepare_data(clips, config=config), config)
+    info = trainer.train_classifier()
+    assert 0.0 <= info["style_accuracy"] <= 1.0
+    batch = trainer.sample()
+    assert int((batch["style"] == 0).sum()) == 3  # half of the 6 rows from neutral clips
+    before = trainer.losses(batch)
+    assert before["rec"] < 1e-10  # the skip starts as the identity: style -> same style is exact
+    for _ in range(8):
+        trainer.generator_step(batch)
+    after = trainer.losses(batch)
+    assert after["moments"] < before["moments"] and after["style"] < before["style"], (before, after)
+    mu, sd = trainer.moments
+    assert mu.shape == sd.shape == (3, len(CONTENTS) + 1, 263)
+
+
+def test_table1_ablation_switches(clips) -> None:
+    """w/o attention: a multi-class critic (one head per style); w/o learnt initial states: zero states that stay."""
+    config = ErdTrainConfig(steps=1, classifier_steps=1, attention=False, learned_init=False, **TINY)
+    torch.manual_seed(0)
+    trainer = ErdTrainer(prepare_data(clips, config=config), config)
+    assert trainer.disc.style_heads is not None
+    batch = trainer.sample()
+    for _ in range(2):
+        trainer.train_step(batch)
+    rec = trainer.net.recurrent
+    for p in (rec.h0_neutral, rec.c0_neutral, rec.h0_style, rec.c0_style):
+        assert not p.requires_grad and not p.any()
 
 
 def test_training_is_deterministic_and_loads(clips, tmp_path) -> None:
