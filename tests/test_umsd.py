@@ -24,7 +24,7 @@ from motionaug.augment.methods.umsd import (
     read_artifact,
     train_umsd,
 )
-from motionaug.augment.methods.umsd.method import UmsdMethod
+from motionaug.augment.methods.umsd.method import UmsdMethod, UmsdParams, blend_ramp, window_spans
 from motionaug.augment.synth import generate_corpus
 from motionaug.models.umsd import UmsdConfig, UmsdNet, pack
 from motionaug.schemas.errors import MotionDataError
@@ -210,6 +210,20 @@ def test_params() -> None:
         UmsdMethod.parse_params({"train": {"steps": 1, "wall_seconds": 3}})
     with pytest.raises(MotionDataError, match=r"config method\.params\.guidance"):
         UmsdMethod.parse_params({"guidance": 2.5})
+
+
+def test_windows_cover_long_clips_and_blend_to_one() -> None:
+    params = UmsdParams(window_overlap=4)
+    assert window_spans(30, 40, params) == [(0, 30)] and window_spans(90, 0, params) == [(0, 90)]
+    spans = window_spans(90, 40, params)
+    assert spans[0][0] == 0 and spans[-1][1] == 90 and all(b - a == 40 for a, b in spans)
+    assert all(b1 - a2 >= 4 for (_, b1), (a2, _) in zip(spans, spans[1:]))  # neighbours overlap
+    total = np.zeros((90, 1), np.float32)
+    for a, b in spans:
+        ramp = blend_ramp(a, b, 90, 4)
+        assert ramp.min() > 0 and ramp.max() == 1
+        total[a:b] += ramp
+    assert total.min() >= 1  # every frame is covered by a full-weight part of some window
 
 
 def test_zero_shot_transfer_of_a_held_out_style(corpus: Path, tmp_path: Path) -> None:

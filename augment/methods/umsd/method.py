@@ -5,8 +5,9 @@ reused while the corpus and the training config match. Styles need no learning: 
 style, ``prepare`` only validates the example clips and stores them normalised in the network's feature space.
 ``load`` + ``transfer``: DDIM sampling of x0 conditioned on U(content clip, style example) (sec. 3.1, Fig. 3 right:
 from pure noise down to step 0, the MSM predicting x0 at every step), keeping the content's root trajectory by
-inpainting, with captions revised in the style's words. ``transfer_noise_step`` < 1000 starts instead from the
-content noised to that step (SDEdit), which keeps more of the content's timing.
+inpainting, with captions revised in the style's words. A clip longer than the network's training crop is
+sampled in overlapping windows of that length, blended over the overlaps (``window``). ``transfer_noise_step``
+< 1000 starts instead from the content noised to that step (SDEdit), which keeps more of the content's timing.
 """
 
 from __future__ import annotations
@@ -85,7 +86,14 @@ class UmsdParams(BaseModel):
     keep: Literal["horizontal", "root", "none"] = Field(
         "horizontal", description="content channels kept by inpainting: root xz + yaw velocities (+ height: root)"
     )
-    batch_size: int = Field(16, ge=1, description="clips per sampling batch")
+    window: int | None = Field(
+        None,
+        ge=0,
+        description="a content clip longer than this is transferred in overlapping windows of this many frames, "
+        "blended over their overlaps (None: the network's training crop train.max_frames; 0: whole clips)",
+    )
+    window_overlap: int = Field(16, ge=0, description="least overlap of two windows, frames (the blend ramp)")
+    batch_size: int = Field(16, ge=1, description="windows (clips) per sampling batch")
     bf16: bool | None = Field(False, description="bf16 autocast for sampling (None: where the CPU has bf16 units)")
     min_frames: int = Field(MIN_EXAMPLE_FRAMES, ge=2, description="shorter content clips and examples are rejected")
     caption_variants: int = Field(1, ge=1, description="Revised captions per output clip.")
@@ -213,6 +221,30 @@ class UmsdMethod(LabelledNetworkMethod):
         return UmsdStyleModel(info.style, load_umsd(trained), examples, self.params)
 
 
+def window_spans(frames: int, window: int, params: UmsdParams) -> list[tuple[int, int]]:
+    """[start, end) of the sampling windows of a ``frames``-long clip: one when it fits (or ``window`` is 0), else
+    the fewest windows of ``window`` frames, evenly spaced, whose neighbours overlap by >= ``window_overlap``."""
+    if window <= 0 or frames <= window:
+        return [(0, frames)]
+    stride = max(1, window - params.window_overlap)
+    count = -(-(frames - window) // stride) + 1
+    starts = [round(k * (frames - window) / (count - 1)) for k in range(count)]
+    return [(a, a + window) for a in starts]
+
+
+def blend_ramp(start: int, end: int, frames: int, overlap: int) -> np.ndarray:
+    """(end - start, 1) blend weights of a window: rising over its first ``overlap`` frames unless it starts the
+    clip, falling over its last ``overlap`` unless it ends it; always > 0."""
+    length = end - start
+    t = np.arange(length, dtype=np.float32)
+    ramp = np.ones(length, np.float32)
+    if overlap > 0 and start > 0:
+        ramp = np.minimum(ramp, (t + 1) / (overlap + 1))
+    if overlap > 0 and end < frames:
+        ramp = np.minimum(ramp, (length - t) / (overlap + 1))
+    return ramp[:, None]
+
+
 @dataclass
 class _Job:
     index: int
@@ -290,16 +322,45 @@ class UmsdStyleModel:
                 inpaint=content.inpaint(self.kept) if self.kept else None,
             ).float()
 
+    def window_size(self) -> int:
+        """Frames per sampling window (0: whole clips)."""
+        return self.model.info.train.max_frames if self.params.window is None else self.params.window
+
+    def _sample_windows(self, jobs: Sequence[_Job], seed: int) -> list[np.ndarray]:
+        """Normalised outputs (T_i, F) of whole clips, sampled window by window.
+
+        The network was trained on crops of ``train.max_frames`` frames: a longer clip is cut into equal windows
+        of ``window`` frames overlapping by at least ``window_overlap``, each conditioned on U(content window,
+        style example), and the windows are blended with linear ramps over their overlaps. A window's initial
+        noise is its slice of the clip's noise, so the output depends only on the clip, the example and the seed.
+        """
+        norm = self.model.normalizer
+        pieces: list[tuple[int, int, int]] = []  # (job, first frame, end)
+        for j, job in enumerate(jobs):
+            pieces += [(j, a, b) for a, b in window_spans(job.motion.shape[0], self.window_size(), self.params)]
+        motions = [norm.normalize(job.motion).astype(np.float32) for job in jobs]
+        noises = [clip_noise((1, *m.shape), [job.clip.id], seed + self.params.seed)[0] for m, job in zip(motions, jobs)]
+        sums = [np.zeros_like(m) for m in motions]
+        weights = [np.zeros((m.shape[0], 1), np.float32) for m in motions]
+        size = self.params.batch_size
+        for start in range(0, len(pieces), size):
+            chunk = pieces[start : start + size]
+            content = MotionBatch.from_motions([motions[j][a:b] for j, a, b in chunk], None)
+            style, style_mask = pad_batch([self.example_for(jobs[j].clip.id) for j, _, _ in chunk])
+            noise, _ = pad_batch([noises[j][a:b] for j, a, b in chunk])
+            out = self.sample(content, style, style_mask, noise).numpy()
+            for row, (j, a, b) in enumerate(chunk):
+                ramp = blend_ramp(a, b, motions[j].shape[0], self.params.window_overlap)
+                sums[j][a:b] += out[row, : b - a] * ramp
+                weights[j][a:b] += ramp
+        return [s / w for s, w in zip(sums, weights)]
+
     def _transfer_batch(self, jobs: Sequence[_Job], seed: int) -> list[TransferOutput | Reject]:
         norm = self.model.normalizer
-        content = MotionBatch.from_motions([norm.normalize(j.motion) for j in jobs], None)
-        style, style_mask = pad_batch([self.example_for(j.clip.id) for j in jobs])
-        noise = clip_noise(content.x.shape, [j.clip.id for j in jobs], seed + self.params.seed)
-        out = self.sample(content, style, style_mask, noise)
+        outputs = self._sample_windows(jobs, seed)
         results: list[TransferOutput | Reject] = []
         for i, job in enumerate(jobs):
-            frames = job.motion.shape[0]
-            motion = norm.denormalize(out[i, :frames].numpy()).astype(np.float32)
+            motion = norm.denormalize(outputs[i]).astype(np.float32)
             motion[:, self.kept] = job.motion[:, self.kept]  # exactly the content's, not up to rounding
             if not np.isfinite(motion).all():
                 results.append(Reject(id=job.clip.id, source=f"clip {job.clip.id}", reason="non-finite UMSD output"))

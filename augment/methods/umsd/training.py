@@ -87,9 +87,9 @@ class UmsdTrainConfig(BaseModel):
     seed: int = 0
     threads: int = Field(1, ge=1, description="torch threads while training (part of what makes runs identical)")
     log_every: int = Field(50, ge=1, description="history interval, steps")
-    # network (``motionaug.models.umsd.UmsdConfig``); the paper gives no widths: CPU-sized defaults (3-4 s a step,
-    # one thread, on a shared 2-core box at load 6.5: bench/bench_umsd.py); its ``--preset large`` (d_model 128,
-    # ff 512, d_state 16, batch 16) is about 4x slower
+    # network (``motionaug.models.umsd.UmsdConfig``); the paper gives no widths: CPU-sized defaults. The Bandai-2
+    # preset (bench/bench_umsd_quality.py ``--preset bandai``) keeps them and trains on shorter crops and batches;
+    # bench/bench_umsd.py ``--preset large`` (d_model 128, ff 512, d_state 16, batch 16) is about 4x slower
     d_model: int = Field(64, ge=1)
     n_heads: int = Field(4, ge=1)
     ff_size: int = Field(256, ge=1)
