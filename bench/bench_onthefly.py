@@ -1,19 +1,20 @@
 """On-the-fly style transfer against the synthetic corpus's paired ground truth, plus fine-tune time and throughput.
 
 Usage: python bench/bench_onthefly.py [--work /tmp/otf-bench] [--size small] [--n-clips 600] [--style proud]
-       [--example-content walk] [--n-content 36] [--lora-rank 4] [--threads 2] [--random-base] [--quick]
-       [--skip full,ablation,content_clock,lora,throughput]
+       [--example-content walk] [--n-content 36] [--split test|val|val+test] [--lora-rank 4] [--threads 2]
+       [--random-base] [--quick] [--skip full,ablation,content_clock,lora,throughput]
 
-Protocol: fine-tune on ONE example clip of ``--style`` (a ``--example-content`` clip of the corpus), then transfer
-neutral clips of the OTHER contents. Reported: SRA/CRA with the base models' classifiers (style = target style,
-content = the clip's own; also of the inputs, of the inputs at the variant's tempo and of the ground truth),
-MPJPE of the output to the ground-truth stylised rendering of the same clip spec (``ClipSpec.with_style``) vs
-the neutral input's (global joints and root-relative joints: the output keeps the neutral path while the
-stylised ground truth walks its own, so the global figure mixes path and pose), and the same
-against the style rendered on the content's own clock and stride (``mpjpe_timing_kept``; ``mpjpe_oracle_timing_kept``
-scores that rendering itself against the ground truth: the ceiling of a method that keeps the content's timing),
-fine-tune seconds, the ablation without L_s, the paper's content clock (``tempo="content"``: no retiming to the
-style's tempo measured from the example), LoRA vs full fine-tuning, and transfer throughput (small/paper, fp32/bf16).
+Protocol: fine-tune on ONE example clip of ``--style`` (a train-split ``--example-content`` clip of the corpus), then
+transfer held-out neutral clips (of ``--split``: choose settings on ``val``, report on ``test``) of the OTHER
+contents. Reported: SRA/CRA with the base models' classifiers (style = target style, content = the clip's own; also of
+the inputs, of the inputs at the variant's tempo and of the ground truth), MPJPE of the output to the ground-truth
+stylised rendering of the same clip spec (``ClipSpec.with_style``) vs the neutral input's (global joints and
+root-relative joints: the output keeps the neutral path while the stylised ground truth walks its own, so the global
+figure mixes path and pose), and the same against the style rendered on the content's own clock and stride
+(``mpjpe_timing_kept``; ``mpjpe_oracle_timing_kept`` scores that rendering itself against the ground truth: the
+ceiling of a method that keeps the content's timing), fine-tune seconds, the ablation without L_s, the paper's content
+clock (``tempo="content"``: no retiming to the style's tempo measured from the example), LoRA vs full fine-tuning, and
+transfer throughput (small/paper, fp32/bf16).
 
 Base models come from ``augment.training.pretrain.ensure_base_models(corpus, out, size)``; with ``--random-base``
 (or when that module is absent) they are random of ``--size`` and the classifier figures are left out (null).
@@ -109,16 +110,20 @@ def style_words(style: str) -> StyleWords:
     return StyleWords(adjective=w.adjective, adverb=w.adverb, phrases=tuple(w.phrases))
 
 
+HELD_OUT = {"val": ("val",), "test": ("test",), "val+test": ("val", "test")}
+"""``--split`` choices: the splits the scored neutral clips come from (tune on ``val``, report on ``test``)."""
+
+
 def pick_clips(
-    clips: Sequence[MotionClip], style: str, content: str, n_content: int
+    clips: Sequence[MotionClip], style: str, content: str, n_content: int, split: str = "test"
 ) -> tuple[MotionClip, list[MotionClip]]:
-    """One ``style`` clip of ``content`` from the train split, and held-out (val/test) neutral clips of every other
-    content: no scored clip is one the prior or the evaluators trained on."""
+    """One ``style`` clip of ``content`` from the train split, and held-out neutral clips (of ``split``: a key of
+    ``HELD_OUT``) of every other content: no scored clip is one the prior or the evaluators trained on."""
     candidates = [c for c in clips if c.style == style and c.content == content]
     train = [c for c in candidates if c.meta.get("split") == "train"] or candidates
     if not train:
         raise SystemExit(f"no {style} {content} clip in the corpus")
-    held_out = ("val", "test")
+    held_out = HELD_OUT[split]
     neutral = [c for c in clips if c.style == "neutral" and c.content != content and c.meta.get("split") in held_out]
     by_content: dict[str, list[MotionClip]] = {}
     for clip in neutral:
@@ -301,6 +306,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--style", default="proud")
     parser.add_argument("--example-content", default="walk")
     parser.add_argument("--n-content", type=int, default=36)
+    parser.add_argument("--split", choices=sorted(HELD_OUT), default="test", help="split of the scored clips")
     parser.add_argument("--lora-rank", type=int, default=4)
     parser.add_argument("--threads", type=int, default=int(os.environ.get("MOTIONAUG_TORCH_THREADS", "2")))
     parser.add_argument("--random-base", action="store_true")
@@ -334,7 +340,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     if args.pretrain_only:
         print(json.dumps({"base_dir": str(base_dir), "pretrained": pretrained}))
         return {"base_dir": str(base_dir)}
-    example, content = pick_clips(corpus, args.style, args.example_content, args.n_content)
+    example, content = pick_clips(corpus, args.style, args.example_content, args.n_content, args.split)
     words = style_words(args.style)
     description = next(
         (
@@ -353,6 +359,8 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         "base_dir": str(base_dir),
         "example": {"id": example.id, "content": example.content, "description": description},
         "n_content": len(content),
+        "split": args.split,
+        "content_splits": dict(Counter(c.meta.get("split") for c in content)),
         "contents": sorted({c.content or "" for c in content}),
         "corpus_clips": len(corpus),
         "threads": torch.get_num_threads(),

@@ -1,15 +1,16 @@
 """The on-the-fly protocol of ``bench_onthefly.py`` repeated for every style of the synthetic corpus.
 
 Usage: python bench/bench_onthefly_styles.py --base-dir DIR --corpus DIR [--work /tmp/otf-styles]
-       [--styles proud,old,...] [--params JSON] [--lora-params JSON --lora-rank 4] [--no-content-clock] [--threads 2]
+       [--styles proud,old,...] [--split test|val|val+test] [--params JSON] [--lora-params JSON --lora-rank 4]
+       [--no-content-clock] [--threads 2]
 
-One example walk per style, the same 36 neutral clips of the other contents, full fine-tuning (the ablation
-is ``bench_onthefly.py``'s); with ``--lora-params``, a LoRA variant beside it on every style, so LoRA is compared
-with full fine-tuning on the hard styles too, not only on one. Per style: the tempo measured from the example,
-SRA, CRA, root-relative MPJPE gain over the neutral input, the same gain on the content's own clock
-(``tempo="content"``, the paper's transfer), the ceiling of such a clock-keeping transfer
-(``mpjpe_oracle_timing_kept``) and the fine-tune time; then the mean over styles. The styles differ in how much
-of them is posture and how much is clock and stride: the clock-keeping figures show what retiming adds.
+One example walk per style (a train-split clip), the same 36 held-out neutral clips (of ``--split``) of the other
+contents, full fine-tuning (the ablation is ``bench_onthefly.py``'s); with ``--lora-params``, a LoRA variant beside it
+on every style, so LoRA is compared with full fine-tuning on the hard styles too, not only on one. Per style: the
+tempo measured from the example, SRA, CRA, root-relative MPJPE gain over the neutral input, the same gain on the
+content's own clock (``tempo="content"``, the paper's transfer), the ceiling of such a clock-keeping transfer
+(``mpjpe_oracle_timing_kept``) and the fine-tune time; then the mean over styles. The styles differ in how much of
+them is posture and how much is clock and stride: the clock-keeping figures show what retiming adds.
 Writes ``WORK/styles.json`` and prints a Markdown table.
 """
 
@@ -22,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from bench_onthefly import HELD_OUT
 from bench_onthefly import main as bench_one
 
 
@@ -39,6 +41,7 @@ def row(style: str, report: dict[str, Any]) -> dict[str, Any]:
         "upper_gain": full["mpjpe"]["reduction_upper"],
         "finetune_s": full["finetune_s"],
         "example": report["example"]["id"],
+        "content_splits": report["content_splits"],
     }
     if "content_clock" in variants:
         kept = variants["content_clock"]
@@ -92,6 +95,7 @@ def main() -> None:
     parser.add_argument("--corpus", type=Path, required=True, help="the corpus the base models were trained on")
     parser.add_argument("--work", type=Path, default=Path("/tmp/otf-styles"))
     parser.add_argument("--styles", default=",".join(s for s in STYLES if s != "neutral"))
+    parser.add_argument("--split", choices=sorted(HELD_OUT), default="test", help="split of the scored clips")
     parser.add_argument("--params", default="{}", help="JSON overrides of OnTheFlyParams")
     parser.add_argument("--lora-params", default=None, help="JSON overrides for a LoRA variant beside full fine-tuning")
     parser.add_argument("--lora-rank", type=int, default=4)
@@ -117,6 +121,8 @@ def main() -> None:
                 str(args.base_dir),
                 "--style",
                 style,
+                "--split",
+                args.split,
                 "--params",
                 args.params,
                 "--skip",
@@ -131,6 +137,7 @@ def main() -> None:
     mean = {"style": "mean", "example": "", **{k: float(np.mean([r[k] for r in rows])) for k in keys}}
     summary = {"args": {k: str(v) for k, v in vars(args).items()}, "rows": rows, "mean": mean}
     (args.work / "styles.json").write_text(json.dumps(summary, indent=2))
+    print(f"scored clips: held out, {args.split} split neutral clips {rows[0]['content_splits']}")
     print(table([*rows, mean]))
 
 
