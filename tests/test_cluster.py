@@ -86,10 +86,19 @@ def _taken(port: int) -> bool:
 
 
 @pytest.fixture(scope="module")
-def cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    """Head + one worker node (1 CPU each); yields the dashboard URL; stops only these processes."""
-    # Not under pytest's basetemp: a concurrent pytest session may prune it while Ray's sockets live there.
+def cluster_dir() -> Iterator[Path]:
+    """local-cluster.sh's state folder (its ``pids`` file names the nodes' sessions).
+
+    Not under pytest's basetemp: a concurrent pytest session may prune it while Ray's sockets live there."""
     state = Path(tempfile.mkdtemp(prefix="motionaug-cluster-"))
+    yield state
+    shutil.rmtree(state, ignore_errors=True)
+
+
+@pytest.fixture(scope="module")
+def cluster(cluster_dir: Path) -> Iterator[str]:
+    """Head + one worker node (1 CPU each); yields the dashboard URL; stops only these processes."""
+    state = cluster_dir
     env = cluster_env(state)
     script = str(DEPLOY / "local-cluster.sh")
     try:
@@ -101,7 +110,6 @@ def cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
         assert stopped.returncode == 0, stopped.stderr
         left = subprocess.run([script, "status"], env=env, capture_output=True, text=True, timeout=30)
         assert "not running" in left.stdout
-        shutil.rmtree(state, ignore_errors=True)
 
 
 @pytest.fixture(scope="module")
@@ -202,36 +210,48 @@ def test_a_job_uses_both_nodes(cluster: str, tmp_path: Path) -> None:
     assert "NODES 2" in logs and "CWD alive" in logs, logs[-2000:]
 
 
-def process_title(pid: int) -> str:
-    """What a Ray worker shows as its command line: ``ray::<task name>`` while it runs a task, ``ray::IDLE`` after."""
+def busy_transfer_workers(cluster_dir: Path) -> list[int]:
+    """Pids of this cluster's Ray workers running a transfer task now, read from the processes themselves.
+
+    A worker's command line is ``ray::<task name>`` while it runs a task (``ray::IDLE`` after), and every process of
+    a node stays in the session local-cluster.sh started it in, so no other cluster's worker is ever picked. The
+    state API reports tasks about a second late: a short transfer task is often over before it is listed.
+    """
     import psutil
 
-    try:
-        return " ".join(psutil.Process(pid).cmdline())
-    except psutil.Error:
-        return ""
+    sessions = {int(line.split()[0]) for line in (cluster_dir / "pids").read_text().splitlines() if line.strip()}
+    busy = []
+    for proc in psutil.process_iter(["pid", "cmdline"]):
+        try:
+            title = " ".join(proc.info["cmdline"] or [])
+            if title.startswith("ray::transfer[") and os.getsid(proc.info["pid"]) in sessions:
+                busy.append(proc.info["pid"])
+        except (psutil.Error, ProcessLookupError):
+            continue
+    return busy
 
 
-def test_worker_sigkill_mid_run_loses_and_duplicates_nothing(cluster: str, corpus: Path, tmp_path: Path) -> None:
+def test_worker_sigkill_mid_run_loses_and_duplicates_nothing(
+    cluster: str, cluster_dir: Path, corpus: Path, tmp_path: Path
+) -> None:
     from motionaug.workflows.jobs import job_state, submit_run, wait_for_job
 
     out = tmp_path / "run"
-    job = submit_run(load_run_config(config_file(tmp_path, corpus, out, seed=1)), cluster)
     before = {(t["task_id"], t["attempt_number"]) for t in transfer_tasks(cluster)}
+    job = submit_run(load_run_config(config_file(tmp_path, corpus, out, seed=1)), cluster)
     killed: list[int] = []
     deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and job_state(cluster, job.job_id).status in ("PENDING", "RUNNING"):
-        new = [t for t in transfer_tasks(cluster) if (t["task_id"], t["attempt_number"]) not in before]
-        if any(t["attempt_number"] >= 1 for t in new):
-            break  # a killed task was retried
-        running = [t for t in new if t["state"] == "RUNNING" and t.get("worker_pid") and t["worker_pid"] not in killed]
-        # the state API lags about a second: kill only a worker whose process title still names a transfer task
-        busy = [t for t in running if process_title(t["worker_pid"]).startswith("ray::transfer[")]
-        if busy and len(killed) < 4:
-            os.kill(busy[0]["worker_pid"], signal.SIGKILL)  # a worker of this test's own cluster
-            killed.append(busy[0]["worker_pid"])
-            time.sleep(1.0)  # task events are reported about once a second
-        time.sleep(0.05)
+    polls = 0
+    while time.monotonic() < deadline and len(killed) < 2:
+        busy = [pid for pid in busy_transfer_workers(cluster_dir) if pid not in killed]
+        if busy:
+            os.kill(busy[0], signal.SIGKILL)  # a worker of this test's own cluster, mid-transfer
+            killed.append(busy[0])
+            time.sleep(0.5)
+        polls += 1
+        if polls % 100 == 0 and job_state(cluster, job.job_id).status not in ("PENDING", "RUNNING"):
+            break
+        time.sleep(0.005)
     assert killed, "no running transfer task was seen to kill"
     state = wait_for_job(cluster, job.job_id, timeout=150)
     assert state.status == "SUCCEEDED", state.message
