@@ -19,6 +19,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import torch
+from bench_pretrain import parse_sets
 
 from motionaug.augment.corpus import Corpus
 from motionaug.augment.methods.umsd import UmsdTrainConfig, UmsdTrainer, prepare_data
@@ -33,13 +34,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("fields", nargs="*", help="UmsdTrainConfig key=value")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
-    fields = {}
-    for item in args.fields:
-        key, value = item.split("=", 1)
-        try:
-            fields[key] = json.loads(value)
-        except ValueError:
-            fields[key] = value
+    fields = parse_sets(args.fields)
     config = UmsdTrainConfig(**fields)
     clips = [replace(c, style="neutral") if c.style == args.neutral else c for c in Corpus(args.corpus)]
     torch.manual_seed(0)

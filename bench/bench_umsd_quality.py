@@ -44,6 +44,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_bandai2 import joints_of, matched_fmd, skating, wilson  # noqa: E402
+from bench_pretrain import parse_sets
 
 from motionaug.augment.corpus import Corpus, MotionClip  # noqa: E402
 from motionaug.augment.eval.evaluation import classify, load_classifiers  # noqa: E402
@@ -86,13 +87,7 @@ def train_config(args: argparse.Namespace) -> UmsdTrainConfig:
     fields = {**PRESETS[args.preset], "steps": args.steps, "threads": args.threads}
     if args.hold_out:
         fields["exclude_styles"] = [args.hold_out]
-    for item in args.set:
-        key, value = item.split("=", 1)
-        try:
-            fields[key] = json.loads(value)
-        except ValueError:
-            fields[key] = value
-    return UmsdTrainConfig(**fields)
+    return UmsdTrainConfig(**{**fields, **parse_sets(args.set)})
 
 
 def train(args: argparse.Namespace, clips: dict[str, MotionClip], ids: list[str]) -> Path:

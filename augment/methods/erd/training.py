@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -37,7 +37,7 @@ import torch
 import torch.nn.functional as F
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from safetensors.torch import load_file
-from torch import Tensor
+from torch import Tensor, nn
 
 from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.io import read_json_model
@@ -490,13 +490,34 @@ class ErdTrainer:
     def train_classifier(self, progress: Progress | None = None, total: int | None = None) -> dict[str, float]:
         """Stage 1: the content classifier D_C on labelled windows (cross-entropy), then frozen."""
         cfg = self.config
-        opt = torch.optim.Adam(self.classifier.parameters(), lr=cfg.lr_classifier)
         total = total or cfg.classifier_steps
+
+        def report(step: int, loss: float, acc: float) -> None:
+            if progress is not None:
+                progress(step + 1, total, {"cls_loss": loss, "cls_acc": acc})
+
+        tail_loss, tail_acc = self._fit_classifier(self.classifier, self.labelled, self.data.contents, report)
+        info = {"steps": float(cfg.classifier_steps), "loss": tail_loss, "accuracy": tail_acc}
+        if cfg.w_style > 0:  # the frozen style critic of ``w_style``: real windows, as many steps as D_C
+            all_windows = np.arange(len(self.data.motions))
+            info["style_accuracy"] = self._fit_classifier(self.style_classifier, all_windows, self.data.styles)[1]
+        return info
+
+    def _fit_classifier(
+        self,
+        model: nn.Module,
+        pool: np.ndarray,
+        labels: np.ndarray,
+        report: Callable[[int, float, float], None] | None = None,
+    ) -> tuple[float, float]:
+        """Cross-entropy on windows of clips drawn from ``pool``, then frozen; (loss, accuracy) over the last 10%."""
+        cfg = self.config
+        opt = torch.optim.Adam(model.parameters(), lr=cfg.lr_classifier)
         tail_loss, tail_acc, tail = 0.0, 0.0, max(1, cfg.classifier_steps // 10)
         for step in range(cfg.classifier_steps):
-            idx = self.labelled[self.rng.integers(0, len(self.labelled), size=cfg.classifier_batch_size)]
-            x, y = self._windows(idx), torch.from_numpy(self.data.contents[idx])
-            logits = self.classifier(x)
+            idx = pool[self.rng.integers(0, len(pool), size=cfg.classifier_batch_size)]
+            x, y = self._windows(idx), torch.from_numpy(labels[idx])
+            logits = model(x)
             loss = F.cross_entropy(logits, y)
             opt.zero_grad(set_to_none=True)
             loss.backward()
@@ -504,33 +525,11 @@ class ErdTrainer:
             acc = float((logits.argmax(-1) == y).float().mean())
             if step >= cfg.classifier_steps - tail:
                 tail_loss, tail_acc = tail_loss + loss.item() / tail, tail_acc + acc / tail
-            if progress is not None:
-                progress(step + 1, total, {"cls_loss": loss.item(), "cls_acc": acc})
-        self.classifier.requires_grad_(False)
-        self.classifier.eval()
-        info = {"steps": float(cfg.classifier_steps), "loss": tail_loss, "accuracy": tail_acc}
-        if cfg.w_style > 0:
-            info["style_accuracy"] = self._train_style_classifier()
-        return info
-
-    def _train_style_classifier(self) -> float:
-        """The frozen style critic of ``w_style``: cross-entropy on real windows, as many steps as D_C."""
-        cfg = self.config
-        opt = torch.optim.Adam(self.style_classifier.parameters(), lr=cfg.lr_classifier)
-        tail, tail_acc = max(1, cfg.classifier_steps // 10), 0.0
-        for step in range(cfg.classifier_steps):
-            idx = self.rng.integers(0, len(self.data.motions), size=cfg.classifier_batch_size)
-            x, y = self._windows(idx), torch.from_numpy(self.data.styles[idx])
-            logits = self.style_classifier(x)
-            loss = F.cross_entropy(logits, y)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            if step >= cfg.classifier_steps - tail:
-                tail_acc += float((logits.argmax(-1) == y).float().mean()) / tail
-        self.style_classifier.requires_grad_(False)
-        self.style_classifier.eval()
-        return tail_acc
+            if report is not None:
+                report(step, loss.item(), acc)
+        model.requires_grad_(False)
+        model.eval()
+        return tail_loss, tail_acc
 
 
 # ---- public API -----------------------------------------------------------------------------------------------
