@@ -24,6 +24,7 @@ from motionaug.augment.diffusion import (
     masked_mse,
     q_posterior_mean_variance,
     q_sample,
+    skip_x0,
     space_timesteps,
     start_step_for,
 )
@@ -333,3 +334,31 @@ def test_ddim_path_matches_sampler_and_carries_gradients() -> None:
     loss = sum((p - x_start).square().mean() for p in preds)
     loss.backward()
     assert weight.grad is not None and weight.grad.abs().sum() > 0
+
+
+def test_skip_x0_is_the_wiener_estimate_and_removes_off_data_noise() -> None:
+    """Unit prior: sqrt(ab) x_t; a prior with zero variance along a direction: that direction of x_t is dropped;
+    and over many draws the covariance skip is the least-squares linear estimate of x0 (zero residual)."""
+    schedule = NoiseSchedule.cosine()
+    g = torch.Generator().manual_seed(0)
+    t = torch.tensor([300, 300])
+    x_t = torch.randn(B, T, D, generator=g, dtype=torch.float64)
+    zero = torch.zeros_like(x_t)
+    ab = schedule.alphas_cumprod[300]
+    assert torch.allclose(skip_x0(schedule, x_t, t, zero), ab.sqrt() * x_t)
+    basis = torch.linalg.qr(torch.randn(D, D, generator=g, dtype=torch.float64))[0]
+    var = torch.tensor([0.0, 0.5, 1.0, 2.0, 4.0], dtype=torch.float64)
+    out = skip_x0(schedule, x_t, t, zero, basis, var)
+    assert torch.allclose((out @ basis)[..., 0], torch.zeros(B, T, dtype=torch.float64), atol=1e-12)
+    # data drawn from the prior: the skip's estimate beats any rescaling of it (it is the MMSE linear one)
+    x0 = (torch.randn(4000, 1, D, generator=g, dtype=torch.float64) * var.sqrt()) @ basis.T
+    tt = torch.full((4000,), 300)
+    noisy = q_sample(schedule, x0, tt, torch.randn(x0.shape, generator=g, dtype=torch.float64))
+    est = skip_x0(schedule, noisy, tt, torch.zeros_like(noisy), basis, var)
+    err = lambda k: (k * est - x0).square().mean().item()  # noqa: E731
+    assert err(1.0) < min(err(0.9), err(1.1)) and err(1.0) < (ab.sqrt() * noisy - x0).square().mean().item()
+    # the residual enters scaled by sqrt(1 - ab)
+    assert torch.allclose(
+        skip_x0(schedule, x_t, t, torch.ones_like(x_t)) - skip_x0(schedule, x_t, t, zero),
+        (1 - ab).sqrt() * torch.ones_like(x_t),
+    )

@@ -194,6 +194,9 @@ def test_training_is_deterministic_and_loads(clips: list[MotionClip], tmp_path: 
     assert info.data["eligible"] and set(info.final) >= {"total", "rec", "dcc", "dsc"}
     model = load_umsd(first)
     assert not model.net.training and model.net.config.d_model == TINY["d_model"]
+    basis, var = model.skip_prior  # the covariance skip's data prior travels with the weights
+    assert basis.shape == (263, 263) and var.shape == (263,) and bool((var >= 0).all())
+    assert torch.allclose(basis.T @ basis, torch.eye(263), atol=1e-4)
     x = torch.from_numpy(model.normalizer.normalize(clips[0].motion[:20]))[None]
     with torch.no_grad():
         y = model.net(x, torch.tensor([10]), x, None, x, None)

@@ -10,6 +10,7 @@ from motionaug.augment.diffusion.gaussian import (
     q_posterior_mean_variance,
     q_sample,
     sample_timesteps,
+    skip_x0,
     x0_training_loss,
 )
 from motionaug.augment.diffusion.samplers import (
@@ -47,6 +48,7 @@ __all__ = [
     "q_mean_variance",
     "q_posterior_mean_variance",
     "q_sample",
+    "skip_x0",
     "sample_timesteps",
     "space_timesteps",
     "start_step_for",

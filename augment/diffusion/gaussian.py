@@ -45,6 +45,35 @@ def q_sample(schedule: NoiseSchedule, x0: Tensor, t: Tensor, noise: Tensor) -> T
     )
 
 
+def skip_x0(
+    schedule: NoiseSchedule,
+    x_t: Tensor,
+    t: Tensor,
+    residual: Tensor,
+    basis: Tensor | None = None,
+    var: Tensor | None = None,
+) -> Tensor:
+    """x0_hat = E_lin[x0 | x_t] + sqrt(1 - alpha_bar_t) F: a network output F read as the residual to the best
+    linear (Wiener) estimate of x0 from x_t under a Gaussian data prior with covariance basis diag(var) basis^T.
+
+    Without ``basis``/``var`` the prior is unit variance and the estimate is sqrt(alpha_bar_t) x_t (the c_skip /
+    c_out preconditioning of Karras et al. 2022 for a VP process, sigma_data = 1). With the data's covariance the
+    estimate passes x_t through only where the data vary: per principal direction the gain is
+    sqrt(ab) var / (ab var + 1 - ab), so noise along directions the data never take is removed by the skip itself
+    and the residual left to F lies in the data's few principal directions. Why a skip at all: identity at small t
+    need not be learnt through a network narrower than the features. x_t (B, T, D), t (B,), basis (D, D) columns
+    = directions, var (D,).
+    """
+    ab = extract(schedule.alphas_cumprod, t, x_t)  # (B, 1, 1)
+    if basis is None or var is None:
+        linear = ab.sqrt() * x_t
+    else:
+        basis, var = basis.to(x_t.dtype), var.to(x_t.dtype)
+        gain = ab.sqrt() * var / (ab * var + 1.0 - ab)  # (B, 1, D)
+        linear = ((x_t @ basis) * gain) @ basis.T
+    return linear + (1.0 - ab).sqrt() * residual
+
+
 def q_mean_variance(schedule: NoiseSchedule, x0: Tensor, t: Tensor) -> tuple[Tensor, Tensor]:
     """Mean and variance of q(x_t | x_0) (variance broadcast-shaped (B, 1, 1))."""
     return extract(schedule.sqrt_alphas_cumprod, t, x0) * x0, extract(1.0 - schedule.alphas_cumprod, t, x0)

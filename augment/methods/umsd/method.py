@@ -27,7 +27,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from motionaug.augment.corpus import MotionClip, Reject
 from motionaug.augment.corpus.style_examples import MIN_EXAMPLE_FRAMES, check_motion
 from motionaug.augment.device import bf16_autocast
-from motionaug.augment.diffusion import ddim_sample, start_step_for
+from motionaug.augment.diffusion import NoiseSchedule, ddim_sample, skip_x0, start_step_for
 from motionaug.augment.eval.inputs import pad_batch
 from motionaug.augment.io import atomic_write_text
 from motionaug.augment.methods.base import (
@@ -267,6 +267,7 @@ class UmsdStyleModel:
         self.params = params
         self.vocab = style_vocab(style.words, style.name)
         self.kept = [] if params.keep == "none" else trajectory_channels(params.keep)
+        self.schedule = NoiseSchedule.cosine(NUM_TIMESTEPS)  # the training schedule (``skip_x0``)
 
     def _job(self, index: int, clip: MotionClip, seed: int) -> _Job:
         source = f"clip {clip.id}"
@@ -309,7 +310,10 @@ class UmsdStyleModel:
             cond = self.net.condition(content.x, content.mask, style, style_mask)
 
             def model_fn(x_t: torch.Tensor, t: torch.Tensor, *, uncond: bool = False) -> torch.Tensor:
-                return self.net.denoise(x_t, t, cond, content.mask).to(x_t.dtype)
+                out = self.net.denoise(x_t, t, cond, content.mask).to(x_t.dtype)
+                if self.model.info.train.skip == "none":
+                    return out
+                return skip_x0(self.schedule, x_t, t, out, *self.model.skip_prior)
 
             return ddim_sample(
                 model_fn,

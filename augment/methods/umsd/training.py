@@ -45,7 +45,7 @@ from safetensors.torch import load_file
 from torch import Tensor
 
 from motionaug.augment.corpus.clip import MotionClip
-from motionaug.augment.diffusion import NoiseSchedule, q_sample
+from motionaug.augment.diffusion import NoiseSchedule, q_sample, skip_x0
 from motionaug.augment.eval.inputs import pad_batch
 from motionaug.augment.io import read_json_model
 from motionaug.augment.methods.base import Progress
@@ -59,6 +59,7 @@ WEIGHTS_FILE = "umsd.safetensors"
 META_FILE = "umsd.json"
 NEUTRAL = "neutral"
 TERMS = ("rec", "dcc", "dsc")
+SKIP_KEYS = ("skip.basis", "skip.var")  # the data prior of ``skip_x0``, saved beside the weights
 FOOT_JOINTS = (*T2M.feet_left, *T2M.feet_right)  # the order of the four foot-contact channels
 
 
@@ -83,6 +84,12 @@ class UmsdTrainConfig(BaseModel):
     w_foot: float = Field(1.0, ge=0, description="Eq. 12: planted-foot speed, m/s")
     use_dcc: bool = Field(True, description="ablation switch for L_dcc (sec. 4.5)")
     use_dsc: bool = Field(True, description="ablation switch for L_dsc (sec. 4.5)")
+    skip: Literal["covariance", "unit", "none"] = Field(
+        "covariance",
+        description="x0 = the linear estimate from x_t under a Gaussian prior with the training frames' second "
+        "moments (covariance) or unit variance (unit), + the network's residual (augment.diffusion.skip_x0); "
+        "none: the network's output is x0",
+    )
     exclude_styles: tuple[str, ...] = Field((), description="styles held out of training (zero-shot, sec. 4.4)")
     seed: int = 0
     threads: int = Field(1, ge=1, description="torch threads while training (part of what makes runs identical)")
@@ -188,6 +195,13 @@ class UmsdData:
     same_style: list[list[int]]  # same style, other content where possible: Eq. 10's pair, rec's style example
     eligible: dict[str, np.ndarray]  # per term, the clips that can be its row's anchor
     dropped: dict[str, int]
+
+    def second_moments(self) -> tuple[Tensor, Tensor]:
+        """(basis (F, F), var (F,)): eigen-decomposition of E[x x^T] over every normalised training frame, the
+        Gaussian data prior of ``skip_x0`` (uncentred: the linear estimate has no intercept)."""
+        frames = torch.from_numpy(np.concatenate(self.motions)).double()
+        var, basis = torch.linalg.eigh(frames.T @ frames / len(frames))
+        return basis.float().contiguous(), var.clamp(min=0).float()
 
     def summary(self) -> dict[str, Any]:
         count = lambda names: {n: names.count(n) for n in sorted(set(names))}  # noqa: E731
@@ -306,6 +320,7 @@ class UmsdTrainer:
         self.mean = torch.from_numpy(data.normalizer.mean)
         self.std = torch.from_numpy(data.normalizer.std)
         self.feet = feature_slices(T2M)["feet"]
+        self.basis, self.var = data.second_moments()
 
     # -- sampling --
 
@@ -363,8 +378,10 @@ class UmsdTrainer:
         cfg = self.config
         mask = batch.x_mask
         x_t = q_sample(self.schedule, batch.x0 * mask[..., None], batch.t, batch.noise)
-        pred = self.net(x_t, batch.t, batch.content, batch.content_mask, batch.style, batch.style_mask, mask)
         keep = mask[..., None].float()
+        pred = self.net(x_t, batch.t, batch.content, batch.content_mask, batch.style, batch.style_mask, mask)
+        if cfg.skip != "none":
+            pred = skip_x0(self.schedule, x_t, batch.t, pred, *self.skip_prior()) * keep
         frames = keep.sum(dim=(1, 2)).clamp(min=1)
         l1 = ((pred - batch.x0).abs() * keep).sum(dim=(1, 2)) / (frames * pred.shape[-1])  # (B,)
         out: dict[str, Tensor] = {}
@@ -391,6 +408,9 @@ class UmsdTrainer:
         total = total + cfg.w_pos * out["pos"] + cfg.w_vel * out["vel"] + cfg.w_foot * out["foot"]
         out["total"] = total
         return out
+
+    def skip_prior(self) -> tuple[Tensor, Tensor] | tuple[None, None]:
+        return (self.basis, self.var) if self.config.skip == "covariance" else (None, None)
 
     def train_step(self, batch: UmsdBatch) -> dict[str, float]:
         self.net.train()
@@ -447,9 +467,8 @@ def train_umsd(
         history=history,
         seconds=time.perf_counter() - start,
     )
-    return write_model_folder(
-        Path(out_dir), {WEIGHTS_FILE: trainer.net.state_dict()}, {META_FILE: artifact.model_dump_json(indent=1)}
-    )
+    tensors = {**trainer.net.state_dict(), **dict(zip(SKIP_KEYS, (trainer.basis, trainer.var)))}
+    return write_model_folder(Path(out_dir), {WEIGHTS_FILE: tensors}, {META_FILE: artifact.model_dump_json(indent=1)})
 
 
 def read_artifact(path: str | os.PathLike[str]) -> UmsdTrainArtifact:
@@ -464,6 +483,7 @@ class UmsdModel:
     net: UmsdNet
     normalizer: Normalizer
     info: UmsdTrainArtifact
+    skip_prior: tuple[Tensor, Tensor] | tuple[None, None]  # (basis, var) of ``skip_x0``, or (None, None)
 
 
 def load_umsd(path: str | os.PathLike[str]) -> UmsdModel:
@@ -472,8 +492,11 @@ def load_umsd(path: str | os.PathLike[str]) -> UmsdModel:
     info = read_artifact(folder)
     try:
         net = UmsdNet(UmsdConfig.from_dict(info.network))
-        net.load_state_dict(load_file(str(folder / WEIGHTS_FILE)), strict=True)
+        tensors = load_file(str(folder / WEIGHTS_FILE))
+        prior = tuple(tensors.pop(k) for k in SKIP_KEYS)
+        net.load_state_dict(tensors, strict=True)
     except Exception as err:  # safetensors, shape or key mismatches: one line, naming the folder
         raise MotionDataError(str(folder), f"unreadable UMSD weights ({str(err).splitlines()[0]})") from None
     normalizer = Normalizer(np.asarray(info.normalizer["mean"]), np.asarray(info.normalizer["std"]))
-    return UmsdModel(net.eval().requires_grad_(False), normalizer, info)
+    skip_prior = prior if info.train.skip == "covariance" else (None, None)
+    return UmsdModel(net.eval().requires_grad_(False), normalizer, info, skip_prior)
