@@ -2,7 +2,7 @@
 
 Usage: python bench/bench_bandai2.py --corpus BANDAI2 --base BASE --work WORK [--split test|val]
        [--method onthefly|stats] [--params JSON] [--examples 1] [--set key=value ...] [--guidance 1.5,2]
-       [--foot-lock]
+       [--foot-lock] [--prior-base BASE_WITHOUT_STYLE]
 
 ``BANDAI2``: ``motionaug corpus import-bvh ../shared/data/bandai/dataset-2 --out BANDAI2 --max-frames 196
 --val-takes 3 --test-takes 3 --mean-std``;
@@ -108,7 +108,7 @@ def run_protocol(args: argparse.Namespace) -> Path:
         *args.set,
     ]
     if args.method != "stats":
-        overrides.append(f"base_models.path={args.base}")
+        overrides.append(f"base_models.path={args.prior_base or args.base}")
     config = load_run_config(REPO / "configs" / f"bandai2-{args.method}.yaml", overrides)
     if args.params:
         params = {**config.method.params, **json.loads(args.params)}
@@ -270,6 +270,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--corpus", type=Path, required=True)
     parser.add_argument("--base", type=Path, required=True, help="base models: the evaluators (and the prior)")
     parser.add_argument("--work", type=Path, required=True)
+    parser.add_argument(
+        "--prior-base",
+        type=Path,
+        default=None,
+        help="base models the method fine-tunes, when not --base (e.g. pre-trained without the scored style)",
+    )
     parser.add_argument("--split", choices=("val", "test"), default="test")
     parser.add_argument("--method", default="onthefly")
     parser.add_argument("--params", default="", help="JSON merged into the config's method params")

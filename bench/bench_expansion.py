@@ -11,8 +11,11 @@ Stages, each reused from WORK when finished (rerun the same command to resume):
    (every style; no second real corpus exists, so C's extra takes are among the judge's training data).
 3. split (``motionaug.augment.eval.expansion.split_by_style``): A = the corpus without the missing styles (motions and
    captions); held out = the test split, every style; one train clip of ``walk`` per missing style as the example.
-4. prior A: the same pre-training config for every training set (``--prior-steps``, seed 0). A's base models are
-   also what the on-the-fly method fine-tunes, as a user would expand with the model they have.
+4. prior A: the same pre-training config for every training set (``--prior-steps``, seed 0), smaller than a
+   method's own base models so that the comparison of A, B and C stays affordable.
+   The methods' base models (``--method-base``): ``own`` (default): ``motionaug pretrain``'s defaults (``--size``)
+   on A's corpus, ``priors/A_method``, as a user would expand with the base models made from their corpus;
+   ``A``: prior A itself (its 400-step motion encoder gives the on-the-fly semantic loss little to go on).
 5. per method: ``motionaug run`` stylizes A's ``expand`` clips (neutral train clips) into every missing style,
    their stylized clips are merged with A in its train split (B), prior B.
 6. C: A plus the true stylized clips (synthetic: the ``expand`` clips re-rendered in each missing style; bandai2:
@@ -83,6 +86,18 @@ def prior_config(args: argparse.Namespace) -> PretrainConfig:
     )
 
 
+def method_base(args: argparse.Namespace) -> str:
+    """The priors/ folder whose base models the methods fine-tune or read (see ``--method-base``)."""
+    return "A_method" if args.method_base == "own" else "A"
+
+
+def method_base_config(args: argparse.Namespace) -> PretrainConfig:
+    """``motionaug pretrain``'s defaults at ``--size``: the base models a user would expand with."""
+    return PretrainConfig.for_size(
+        args.size, seed=0, classifier_size="tiny", classifier_epochs=args.classifier_epochs, threads=args.threads
+    )
+
+
 def judge_config(args: argparse.Namespace) -> PretrainConfig:
     """The judge's prior only feeds its motion encoder's input layer, so it gets few steps; the encoder gets more."""
     return PretrainConfig.for_size(
@@ -144,6 +159,12 @@ def description(example: dict[str, str], words: Any) -> str:
     return f"a person walks forward {words.phrases[0] if words.phrases else words.adverb}"
 
 
+def method_of(label: str) -> str:
+    """``onthefly-strong`` -> ``onthefly``: a label names one B (its folders and figures); the part before the first
+    dash is the method, ``--params`` are looked up by the label, then by the method."""
+    return label.split("-")[0]
+
+
 def run_config(args: argparse.Namespace, work: Path, split: StyleSplit, method: str) -> dict[str, Any]:
     """A ``motionaug run`` config that stylizes A's ``expand`` clips into every missing style from one example each."""
     words = style_words(args)
@@ -155,20 +176,26 @@ def run_config(args: argparse.Namespace, work: Path, split: StyleSplit, method: 
         }
         for style, ex in split.examples.items()
     ]
-    base_models: dict[str, Any] = {"path": str(work / "priors" / "A"), "pretrain_if_missing": False}
-    if method in ("erd", "umsd"):  # they learn from a labelled style corpus: its train split holds no held-out clip
-        base_models["corpus"] = str(work / "corpus")
+    base_models: dict[str, Any] = {"path": str(work / "priors" / method_base(args)), "pretrain_if_missing": False}
+    # erd and umsd train their network in the run, on a labelled style corpus whose train split holds no held-out clip
+    if method_of(method) in ("erd", "umsd"):
+        base_models = {"path": str(work / "networks" / method), "corpus": str(work / "corpus")}
     return {
         "version": 1,
         "corpus": {"path": str(work / "split" / BASE_DIR), "split": "expand", "filters": {"max_frames": 199}},
         "styles": styles,
-        "method": {"name": method, "params": json.loads(args.params).get(method, {})},
+        "method": {"name": method_of(method), "params": params_of(args, method)},
         "base_models": base_models,
         "fan_out": {"per_clip": "all", "seed": 0},
         "compute": {"num_cpus": args.threads, "batch_size": 32, "unit_size": 256},
         "output": str(work / "runs" / method),
         "seed": 0,
     }
+
+
+def params_of(args: argparse.Namespace, label: str) -> dict[str, Any]:
+    params = json.loads(args.params)
+    return params.get(label, params.get(method_of(label), {}))
 
 
 def expand(args: argparse.Namespace, work: Path, split: StyleSplit, method: str) -> Path:
@@ -226,6 +253,30 @@ def score(args: argparse.Namespace, work: Path, name: str, judge: Judge, split: 
     path.parent.mkdir(exist_ok=True)
     path.write_text(json.dumps(figures, indent=1))
     return figures
+
+
+def added_recognition(work: Path, judge: Judge, name: str) -> dict[str, Any]:
+    """The judge's style and content recognition of the clips a training set adds to A (B: a method's stylized
+    clips; C: the true ones): how much style the prior was given to learn, before any prior is trained."""
+    import numpy as np
+
+    sys.path.insert(0, str(REPO / "bench"))
+    from bench_bandai2 import joints_of
+
+    from motionaug.augment.eval.evaluation import classify
+
+    corpus, base = work / "corpora" / name, work / "split" / BASE_DIR
+    ids = sorted(set((corpus / "train.txt").read_text().split()) - set((base / "train.txt").read_text().split()))
+    labels = {row["id"]: row for row in map(json.loads, (corpus / "labels.jsonl").read_text().splitlines())}
+    joints = [joints_of(np.load(corpus / "new_joint_vecs" / f"{i}.npy")) for i in ids]
+    out: dict[str, Any] = {"clips": len(ids)}
+    for kind, model, names in (
+        ("style", judge.classifiers.style, judge.classifiers.style_labels),
+        ("content", judge.classifiers.content, judge.classifiers.content_labels),
+    ):
+        predicted = [names[int(k)] for k in classify(model, joints)[0].argmax(1)]
+        out[kind] = float(np.mean([p == labels[i][kind] for p, i in zip(predicted, ids)])) if ids else None
+    return out
 
 
 def summarise(scores: dict[str, dict], methods: list[str]) -> dict[str, Any]:
@@ -325,7 +376,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("protocol", choices=("synthetic", "bandai2"))
     parser.add_argument("--work", type=Path, required=True)
-    parser.add_argument("--methods", default="stats,onthefly", help="comma-separated: stats, onthefly, erd, umsd")
+    parser.add_argument(
+        "--methods",
+        default="stats,onthefly",
+        help="comma-separated: stats, onthefly, erd, umsd; METHOD-LABEL adds another B of METHOD (own --params)",
+    )
     parser.add_argument("--missing", default=None, help="styles A lacks (default: synthetic 4, bandai2 all 6)")
     parser.add_argument("--clips", type=int, default=800, help="synthetic corpora size")
     parser.add_argument("--expand", type=int, default=100, help="neutral train clips of A to stylize (0 = all)")
@@ -340,6 +395,7 @@ def main() -> None:
     parser.add_argument("--ddim", type=int, default=20)
     parser.add_argument("--seed", type=int, default=0, help="sampling seed")
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--method-base", choices=("own", "A"), default="own", help="the methods' base models")
     parser.add_argument("--params", default="{}", help='JSON: per-method params, e.g. {"onthefly": {"epochs": 1}}')
     parser.add_argument("--plots", type=Path, default=None, help="write PNG plots here")
     args = parser.parse_args()
@@ -361,6 +417,8 @@ def main() -> None:
     config = prior_config(args)
     pretrain(args, work, "A", work / "split" / BASE_DIR, config)
     scores = {"A": score(args, work, "A", judge, split)}
+    if args.method_base == "own" and {method_of(m) for m in methods} - {"stats"}:
+        pretrain(args, work, "A_method", work / "split" / BASE_DIR, method_base_config(args))
     for method in methods:  # each training set is scored as soon as its prior exists: a stopped run keeps figures
         pretrain(args, work, f"B_{method}", expand(args, work, split, method), config)
         scores[f"B_{method}"] = score(args, work, f"B_{method}", judge, split)
@@ -376,12 +434,14 @@ def main() -> None:
         "settings": {k: str(v) for k, v in vars(args).items()},
         "prior_config": config.model_dump(),
         "scores": scores,
+        "added_clips_judged": {n: added_recognition(work, judge, n) for n in [*(f"B_{m}" for m in methods), "C"]},
         "summary": summarise(scores, methods),
         "timings": json.loads((work / "timings.json").read_text()),
         "load": os.getloadavg(),
     }
     (work / "results.json").write_text(json.dumps(results, indent=1))
     print(table(scores))
+    print(json.dumps(results["added_clips_judged"], indent=1))
     print(json.dumps(results["summary"], indent=1))
     if args.plots:
         for path in plot(scores, args.plots, f"{args.protocol}: A lacks {', '.join(split.missing)}"):

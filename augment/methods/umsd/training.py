@@ -84,8 +84,8 @@ class UmsdTrainConfig(BaseModel):
     w_foot: float = Field(1.0, ge=0, description="Eq. 12: planted-foot speed, m/s")
     use_dcc: bool = Field(True, description="ablation switch for L_dcc (sec. 4.5)")
     use_dsc: bool = Field(True, description="ablation switch for L_dsc (sec. 4.5)")
-    skip: Literal["covariance", "unit", "none"] = Field(
-        "covariance",
+    skip: Literal["none", "covariance", "unit"] = Field(
+        "none",
         description="x0 = the linear estimate from x_t under a Gaussian prior with the training frames' second "
         "moments (covariance) or unit variance (unit), + the network's residual (augment.diffusion.skip_x0); "
         "none: the network's output is x0",
@@ -493,7 +493,9 @@ def load_umsd(path: str | os.PathLike[str]) -> UmsdModel:
     try:
         net = UmsdNet(UmsdConfig.from_dict(info.network))
         tensors = load_file(str(folder / WEIGHTS_FILE))
-        prior = tuple(tensors.pop(k) for k in SKIP_KEYS)
+        prior = tuple(tensors.pop(k, None) for k in SKIP_KEYS)  # absent from folders trained before the skip
+        if info.train.skip == "covariance" and None in prior:
+            raise ValueError("no skip.basis / skip.var beside the weights")
         net.load_state_dict(tensors, strict=True)
     except Exception as err:  # safetensors, shape or key mismatches: one line, naming the folder
         raise MotionDataError(str(folder), f"unreadable UMSD weights ({str(err).splitlines()[0]})") from None
