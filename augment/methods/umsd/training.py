@@ -21,7 +21,9 @@ the integrated root), in metres: L1 on positions, L1 on joint velocities (m/s), 
 speed (m/s) on the frames where the target's foot-contact channels say the foot is planted. Every term applies
 to every row against the row's own target.
 
-The diffusion reconstruction terms use L1 (Eqs. 10-11); the network predicts x0 (sec. 3.4, Ramesh et al.).
+The diffusion reconstruction terms use L1 (Eqs. 10-11); the network predicts x0 (sec. 3.4, Ramesh et al.), or
+with ``skip`` x0's residual to the linear estimate of x0 from x_t (``augment.diffusion.skip_x0``), which a network
+narrower than the features otherwise learns slowly enough to end up copying its clean conditions instead.
 ``train_umsd`` runs a fixed number of steps (never a wall-clock cap) and is bit-identical for the same clips,
 config, seed and thread count. Output folder (written to a temporary sibling, then renamed into place):
 ``umsd.safetensors`` (weights) and ``umsd.json`` (``UmsdTrainArtifact``: network config, normaliser, training
