@@ -35,8 +35,13 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_bandai2 import joints_of  # noqa: E402
+
+from motionaug.augment.eval.evaluation import classify  # noqa: E402
 from motionaug.augment.eval.expansion import (
     BASE_DIR,
     HELD_OUT_DIR,
@@ -50,7 +55,7 @@ from motionaug.augment.eval.expansion import (
     split_by_style,
     true_stylized,
 )
-from motionaug.augment.training.pretrain import PretrainConfig, ensure_base_models
+from motionaug.augment.training.pretrain import PretrainConfig, ensure_base_models  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 BANDAI2 = REPO.parent / "shared" / "data" / "bandai" / "dataset-2"
@@ -258,13 +263,6 @@ def score(args: argparse.Namespace, work: Path, name: str, judge: Judge, split: 
 def added_recognition(work: Path, judge: Judge, name: str) -> dict[str, Any]:
     """The judge's style and content recognition of the clips a training set adds to A (B: a method's stylized
     clips; C: the true ones): how much style the prior was given to learn, before any prior is trained."""
-    import numpy as np
-
-    sys.path.insert(0, str(REPO / "bench"))
-    from bench_bandai2 import joints_of
-
-    from motionaug.augment.eval.evaluation import classify
-
     corpus, base = work / "corpora" / name, work / "split" / BASE_DIR
     ids = sorted(set((corpus / "train.txt").read_text().split()) - set((base / "train.txt").read_text().split()))
     labels = {row["id"]: row for row in map(json.loads, (corpus / "labels.jsonl").read_text().splitlines())}
@@ -417,7 +415,7 @@ def main() -> None:
     config = prior_config(args)
     pretrain(args, work, "A", work / "split" / BASE_DIR, config)
     scores = {"A": score(args, work, "A", judge, split)}
-    if args.method_base == "own" and {method_of(m) for m in methods} - {"stats"}:
+    if args.method_base == "own" and "onthefly" in {method_of(m) for m in methods}:
         pretrain(args, work, "A_method", work / "split" / BASE_DIR, method_base_config(args))
     for method in methods:  # each training set is scored as soon as its prior exists: a stopped run keeps figures
         pretrain(args, work, f"B_{method}", expand(args, work, split, method), config)
