@@ -276,6 +276,8 @@ def test_cancel_stops_a_run_and_retry_resumes_it(cluster: str, corpus: Path, tmp
     assert refused.exit_code == 1 and "--retry" in refused.output
     retried = CliRunner().invoke(app, ["submit", str(cfg), "--address", cluster, "--retry"])
     assert retried.exit_code == 0 and f"{job_id}-2" in retried.output, retried.output
+    # the stopped driver may still hold the run folder: the retry waits for it instead of failing
+    assert "--lock-wait" in connect(cluster).get_job_info(f"{job_id}-2").entrypoint
     final = wait_for_job(cluster, f"{job_id}-2", timeout=150)
     assert final.status == "SUCCEEDED", connect(cluster).get_job_logs(f"{job_id}-2")[-3000:]
     assert sorted(output_ids(out)) == sorted(set(output_ids(out))) and len(output_ids(out)) == TOTAL_ROWS

@@ -16,6 +16,8 @@ import stat
 import subprocess
 import sys
 import textwrap
+import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -96,6 +98,23 @@ def test_the_lock_of_a_killed_run_is_taken_over_with_a_warning(tmp_path: Path, c
         assert RunLock.is_held_here(root)
     assert f"pid {holder.pid}" in caplog.text and "took over" in caplog.text
     assert not (root / LOCK_FILE).exists() and not RunLock.is_held_here(root)
+
+
+def test_a_waiting_taker_gets_the_lock_once_an_exiting_holder_is_gone(tmp_path: Path) -> None:
+    """A retried job waits for the stopped job's driver, which Ray may report STOPPED before it has exited."""
+    root = tmp_path / "run"
+    holder = hold_lock(root)
+    try:
+        start = time.monotonic()
+        with pytest.raises(MotionDataError, match="another motionaug run holds this folder"):
+            RunLock(root, wait_s=0.5).acquire()
+        assert time.monotonic() - start >= 0.5  # it did wait before refusing
+        threading.Timer(0.5, kill_9, args=(holder,)).start()
+        with RunLock(root, wait_s=30) as lock:
+            assert lock.takeover is not None and f"pid {holder.pid}" in lock.takeover
+    finally:
+        if holder.poll() is None:
+            kill_9(holder)
 
 
 def test_the_lock_is_released_when_the_run_fails(tmp_path: Path) -> None:

@@ -330,6 +330,9 @@ def run_command(
     log_every: Annotated[
         float, typer.Option(min=0, help="Off a terminal (a job's log): seconds between a stage's progress lines.")
     ] = 10.0,
+    lock_wait: Annotated[
+        float, typer.Option(min=0, help="Seconds to wait for the run folder's current writer to exit, then refuse.")
+    ] = 0.0,
 ) -> None:
     """Fine-tune every style and stylize the corpus into Parquet shards; re-running resumes."""
     from contextlib import nullcontext
@@ -358,7 +361,7 @@ def run_command(
         # rich bars redraw in place; off a terminal (a job's driver log) they would show only at the end
         with Progress(*RUN_COLUMNS, console=console) if console.is_terminal else nullcontext() as bars:
             progress = _Bars(bars) if bars is not None else LineProgress(every=log_every)
-            summary = run_safely(lambda: execute_run(cfg, force=force, progress=progress))
+            summary = run_safely(lambda: execute_run(cfg, force=force, progress=progress, lock_wait_s=lock_wait))
         _print_run_summary(summary)
         if url and keep_dashboard:
             hold_dashboard(url, console.print)

@@ -110,11 +110,16 @@ def _job_missing(err: RuntimeError) -> bool:
     return "404" in text or "does not exist" in text
 
 
-def entrypoint(config_name: str = CONFIG_NAME) -> str:
-    """The command the job's driver runs on the cluster (``auto``: the cluster the job runs on)."""
+RETRY_LOCK_WAIT_S = 120.0
+
+
+def entrypoint(config_name: str = CONFIG_NAME, lock_wait_s: float = 0.0) -> str:
+    """The command the job's driver runs on the cluster (``auto``: the cluster the job runs on). A retry waits
+    ``lock_wait_s`` for the run folder: Ray reports a stopped job STOPPED while its driver may still be exiting."""
     import shlex
 
-    return f"motionaug run {shlex.quote(config_name)} --address auto"
+    wait = f" --lock-wait {lock_wait_s:g}" if lock_wait_s else ""
+    return f"motionaug run {shlex.quote(config_name)} --address auto{wait}"
 
 
 def shipped_config(config: RunConfig) -> dict[str, Any]:
@@ -162,7 +167,7 @@ def submit_run(
     url = dashboard_url(address)
     run_id = config.run_id()
     job_id = next_attempt(client, url, run_id, retry)
-    command = entrypoint()
+    command = entrypoint(lock_wait_s=RETRY_LOCK_WAIT_S if job_id != job_id_for(run_id) else 0.0)
     with tempfile.TemporaryDirectory(prefix="motionaug-submit-") as folder:
         (Path(folder) / CONFIG_NAME).write_text(json.dumps(shipped_config(config), indent=1), encoding="utf-8")
         env = {**(runtime_env or {}), "working_dir": folder}

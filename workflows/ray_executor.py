@@ -260,13 +260,15 @@ def prepare_run_dir(config: RunConfig, force: bool) -> None:
 # ---- the run ---------------------------------------------------------------------------------------
 
 
-def execute_run(config: RunConfig, force: bool = False, progress: RunProgress | None = None) -> RunSummary:
+def execute_run(
+    config: RunConfig, force: bool = False, progress: RunProgress | None = None, lock_wait_s: float = 0.0
+) -> RunSummary:
     """Run (or resume) the whole workflow for ``config`` as the one writer of its folder; returns the manifest
     and timings. Relative paths are made absolute against the working directory first, so what the run stores
-    reads back from anywhere."""
+    reads back from anywhere. ``lock_wait_s``: how long to wait for a folder's previous writer to exit."""
     config = resolve_paths(config, Path.cwd())
     check_config(config)
-    with RunLock(config.output):
+    with RunLock(config.output, wait_s=lock_wait_s):
         prepare_run_dir(config, force)
         write_resolved_config(config)
         start = time.perf_counter()

@@ -46,11 +46,14 @@ class RunLock:
     """``with RunLock(root):`` the run folder is this process's until the block ends (normally or not).
 
     A second taker gets one ``MotionDataError`` naming the holder; ``takeover`` says whose stale lock was taken.
+    ``wait_s`` lets a taker that expects the holder to exit soon (a retried job whose stopped driver is still
+    shutting down) keep trying that long before it refuses.
     """
 
-    def __init__(self, root: str | Path) -> None:
+    def __init__(self, root: str | Path, wait_s: float = 0.0) -> None:
         self.root = Path(root).resolve()
         self.path = self.root / LOCK_FILE
+        self.wait_s = wait_s
         self.fd: int | None = None
         self.takeover: str | None = None
 
@@ -62,6 +65,7 @@ class RunLock:
     def acquire(self) -> RunLock:
         import fcntl  # POSIX; imported here so reading a run folder (export, evaluate) works everywhere
 
+        deadline = time.monotonic() + self.wait_s
         while True:
             try:
                 self.root.mkdir(parents=True, exist_ok=True)
@@ -73,6 +77,9 @@ class RunLock:
             except BlockingIOError:
                 holder = holder_text(_read_holder(fd) or {})
                 os.close(fd)
+                if time.monotonic() < deadline:
+                    time.sleep(0.2)
+                    continue
                 reason = f"another motionaug run holds this folder ({holder}); wait for it to end or use another --out"
                 raise MotionDataError(str(self.root), reason) from None
             except OSError as err:
