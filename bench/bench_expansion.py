@@ -22,6 +22,10 @@ Stages, each reused from WORK when finished (rerun the same command to resume):
    the real train takes of the missing styles), prior C.
 7. scoring (``score_prior``): every caption of every held-out clip, DDIM-``--ddim`` with guidance ``--guidance``,
    judged by the judge. Writes WORK/results.json, prints a Markdown table; ``--plots DIR`` writes the PNGs.
+
+``--prior-seeds 0,1,2`` pre-trains A, B and C once per seed (the methods' own data and base models stay seed 0's)
+and reports the means, with each seed's figures and the spread in results.json: a single prior's recognition on
+~100 captions moves by more than the 3-point content target with its seed or thread count.
 """
 
 from __future__ import annotations
@@ -49,6 +53,7 @@ from motionaug.augment.eval.expansion import (
     Judge,
     StyleSplit,
     gain_share,
+    mean_figures,
     merge_clips,
     run_clips,
     score_prior,
@@ -77,12 +82,12 @@ def timed(work: Path, name: str, fn: Any) -> Any:
     return result
 
 
-def prior_config(args: argparse.Namespace) -> PretrainConfig:
+def prior_config(args: argparse.Namespace, seed: int = 0) -> PretrainConfig:
     """The one pre-training config of A, B and C. Their own evaluators judge nothing here (the judge does), so they
     get the tiny classifier; A's motion encoder is what the on-the-fly method's L_s reads."""
     return PretrainConfig.for_size(
         args.size,
-        seed=0,
+        seed=seed,
         prior_steps=args.prior_steps,
         encoder_steps=args.encoder_steps,
         classifier_size="tiny",
@@ -231,9 +236,25 @@ def upper_bound(work: Path) -> Path:
     return out
 
 
+def seeded(name: str, seed: int) -> str:
+    """The priors/ and scores/ name of training set ``name``'s prior trained with ``seed`` (seed 0: the name)."""
+    return name if seed == 0 else f"{name}-s{seed}"
+
+
 def pretrain(args: argparse.Namespace, work: Path, name: str, corpus: Path, config: PretrainConfig) -> Path:
     log(f"pre-training {name} on {corpus.name} ({config.prior_steps} prior steps)")
     return timed(work, f"pretrain_{name}", lambda: ensure_base_models(corpus, work / "priors" / name, config=config))
+
+
+def train_and_score(
+    args: argparse.Namespace, work: Path, name: str, corpus: Path, judge: Judge, split: StyleSplit
+) -> dict[str, Any]:
+    """Training set ``name``: one prior per ``--prior-seeds`` seed, each scored; the mean and each seed's figures."""
+    runs = []
+    for seed in args.prior_seeds:
+        pretrain(args, work, seeded(name, seed), corpus, prior_config(args, seed))
+        runs.append(score(args, work, seeded(name, seed), judge, split))
+    return {"mean": mean_figures(runs), "seeds": dict(zip(map(str, args.prior_seeds), runs))}
 
 
 def score(args: argparse.Namespace, work: Path, name: str, judge: Judge, split: StyleSplit) -> dict:
@@ -277,8 +298,21 @@ def added_recognition(work: Path, judge: Judge, name: str) -> dict[str, Any]:
     return out
 
 
+def spread(by_seed: dict[str, dict[str, Any]]) -> dict[str, dict[str, float]]:
+    """Per training set, the two target figures' standard deviation over prior seeds, in points."""
+    out = {}
+    for name, runs in by_seed.items():
+        style = [r["style_prompted"]["style"] for r in runs["seeds"].values()]
+        content = [r["neutral"]["content"] for r in runs["seeds"].values()]
+        out[name] = {
+            "style_sd_points": 100 * float(np.std(style)),
+            "neutral_content_sd_points": 100 * float(np.std(content)),
+        }
+    return out
+
+
 def summarise(scores: dict[str, dict], methods: list[str]) -> dict[str, Any]:
-    """Per method: B's gain over A as a share of C's, and the issue's targets."""
+    """Per method: B's gain over A as a share of C's, and the issue's targets (on the means over prior seeds)."""
     a, c = scores["A"], scores["C"]
     out: dict[str, Any] = {}
     for method in methods:
@@ -288,6 +322,7 @@ def summarise(scores: dict[str, dict], methods: list[str]) -> dict[str, Any]:
             "style_gain_points": 100 * (sra[1] - sra[0]),
             "style_share_of_C": gain_share(*sra),
             "neutral_content_drop_points": 100 * (a["neutral"]["content"] - b["neutral"]["content"]),
+            "C_neutral_content_drop_points": 100 * (a["neutral"]["content"] - c["neutral"]["content"]),
             "targets_met": {
                 "style >= A + 40 points": sra[1] - sra[0] >= 0.40,
                 "style >= 70% of the way to C": (gain_share(*sra) or 0.0) >= 0.70,
@@ -392,11 +427,15 @@ def main() -> None:
     parser.add_argument("--guidance", type=float, default=3.0)
     parser.add_argument("--ddim", type=int, default=20)
     parser.add_argument("--seed", type=int, default=0, help="sampling seed")
+    parser.add_argument(
+        "--prior-seeds", default="0", help="comma-separated: A, B and C are each pre-trained once per seed; means"
+    )
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--method-base", choices=("own", "A"), default="own", help="the methods' base models")
     parser.add_argument("--params", default="{}", help='JSON: per-method params, e.g. {"onthefly": {"epochs": 1}}')
     parser.add_argument("--plots", type=Path, default=None, help="write PNG plots here")
     args = parser.parse_args()
+    args.prior_seeds = [int(s) for s in args.prior_seeds.split(",")]
     work = args.work.resolve()
     work.mkdir(parents=True, exist_ok=True)
     methods = [m for m in args.methods.split(",") if m]
@@ -413,15 +452,16 @@ def main() -> None:
     pretrain(args, work, "judge", judge_corpus, judge_config(args))
     judge = Judge(work / "priors" / "judge")
     config = prior_config(args)
-    pretrain(args, work, "A", work / "split" / BASE_DIR, config)
-    scores = {"A": score(args, work, "A", judge, split)}
+    # the methods read seed 0's A (--method-base A); the other seeds only re-train the priors that are compared
+    by_seed = {"A": train_and_score(args, work, "A", work / "split" / BASE_DIR, judge, split)}
     if args.method_base == "own" and "onthefly" in {method_of(m) for m in methods}:
         pretrain(args, work, "A_method", work / "split" / BASE_DIR, method_base_config(args))
     for method in methods:  # each training set is scored as soon as its prior exists: a stopped run keeps figures
-        pretrain(args, work, f"B_{method}", expand(args, work, split, method), config)
-        scores[f"B_{method}"] = score(args, work, f"B_{method}", judge, split)
-    pretrain(args, work, "C", upper_bound(work), config)
-    scores["C"] = score(args, work, "C", judge, split)
+        by_seed[f"B_{method}"] = train_and_score(
+            args, work, f"B_{method}", expand(args, work, split, method), judge, split
+        )
+    by_seed["C"] = train_and_score(args, work, "C", upper_bound(work), judge, split)
+    scores = {name: runs["mean"] for name, runs in by_seed.items()}
     results = {
         "protocol": args.protocol,
         "missing": split.missing,
@@ -431,7 +471,10 @@ def main() -> None:
         "expand_clips": len(split.expand_ids),
         "settings": {k: str(v) for k, v in vars(args).items()},
         "prior_config": config.model_dump(),
+        "prior_seeds": args.prior_seeds,
         "scores": scores,
+        "scores_by_seed": {name: runs["seeds"] for name, runs in by_seed.items()},
+        "spread_over_seeds": spread(by_seed),
         "added_clips_judged": {n: added_recognition(work, judge, n) for n in [*(f"B_{m}" for m in methods), "C"]},
         "summary": summarise(scores, methods),
         "timings": json.loads((work / "timings.json").read_text()),
@@ -440,6 +483,7 @@ def main() -> None:
     (work / "results.json").write_text(json.dumps(results, indent=1))
     print(table(scores))
     print(json.dumps(results["added_clips_judged"], indent=1))
+    print(json.dumps(results["spread_over_seeds"], indent=1))
     print(json.dumps(results["summary"], indent=1))
     if args.plots:
         for path in plot(scores, args.plots, f"{args.protocol}: A lacks {', '.join(split.missing)}"):

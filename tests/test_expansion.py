@@ -15,6 +15,7 @@ from motionaug.augment.eval.expansion import (
     Judge,
     StyleSplit,
     gain_share,
+    mean_figures,
     merge_clips,
     score_prior,
     split_by_style,
@@ -125,6 +126,17 @@ def test_three_trainings_lower_their_loss_and_are_scored(split: Path, text_encod
 def test_gain_share() -> None:
     assert gain_share(0.1, 0.6, 0.8) == pytest.approx(0.5 / 0.7)
     assert gain_share(0.5, 0.6, 0.5) is None and gain_share(None, 0.6, 0.8) is None
+
+
+def test_mean_figures_averages_seeds_key_by_key() -> None:
+    runs = [
+        {"neutral": {"content": 0.8, "fmd": 10.0, "n": 90}, "all": {"fmd": None}, "label": "x"},
+        {"neutral": {"content": 0.6, "fmd": 30.0, "n": 90}, "all": {"fmd": 2.0}, "label": "x"},
+    ]
+    mean = mean_figures(runs)
+    assert mean["neutral"] == {"content": pytest.approx(0.7), "fmd": pytest.approx(20.0), "n": 90.0}
+    assert mean["all"]["fmd"] is None and mean["label"] == "x"
+    assert mean_figures(runs[:1])["neutral"]["content"] == pytest.approx(0.8)
 
 
 def test_commands_split_and_truth(split: Path, tmp_path: Path) -> None:

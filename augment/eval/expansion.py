@@ -14,7 +14,7 @@ import shutil
 import uuid
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -440,3 +440,19 @@ def gain_share(a: float | None, b: float | None, c: float | None) -> float | Non
     if a is None or b is None or c is None or abs(c - a) < 1e-9:
         return None
     return (b - a) / (c - a)
+
+
+def mean_figures(runs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """The mean of ``score_prior``'s figures over priors trained with different seeds, key by key (nested dicts
+    alike); a figure missing (None) from any run is None. One prior's figures on ~100 captions move by several
+    points with its training seed, more than the protocol's 3-point content target, so its figures are means."""
+    out: dict[str, Any] = {}
+    for key, first in runs[0].items():
+        values = [run[key] for run in runs]
+        if isinstance(first, Mapping):
+            out[key] = mean_figures(values)
+        elif isinstance(first, int | float) and not isinstance(first, bool):
+            out[key] = None if any(v is None for v in values) else float(np.mean(values))
+        else:
+            out[key] = None if any(v is None for v in values) else first
+    return out
