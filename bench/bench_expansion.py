@@ -20,8 +20,9 @@ Stages, each reused from WORK when finished (rerun the same command to resume):
    their stylized clips are merged with A in its train split (B), prior B.
 6. C: A plus the true stylized clips (synthetic: the ``expand`` clips re-rendered in each missing style; bandai2:
    the real train takes of the missing styles), prior C.
-7. scoring (``score_prior``): every caption of every held-out clip, DDIM-``--ddim`` with guidance ``--guidance``,
-   judged by the judge. Writes WORK/results.json, prints a Markdown table; ``--plots DIR`` writes the PNGs.
+7. scoring (``score_prior``): every caption of every held-out clip, ``--samples`` times, DDIM-``--ddim`` with
+   guidance ``--guidance``, judged by the judge. Writes WORK/results.json, prints a Markdown table; ``--plots DIR``
+   writes the PNGs.
 
 ``--prior-seeds 0,1,2`` pre-trains A, B and C once per seed (the methods' own data and base models stay seed 0's)
 and reports the means, with each seed's figures and the spread in results.json: a single prior's recognition on
@@ -78,7 +79,9 @@ def timed(work: Path, name: str, fn: Any) -> Any:
     path = work / "timings.json"
     timings = json.loads(path.read_text()) if path.is_file() else {}
     timings[name] = round(timings.get(name, 0.0) + time.perf_counter() - start, 1)
-    path.write_text(json.dumps(timings, indent=1))
+    tmp = path.with_name(f".{path.name}.{os.getpid()}")
+    tmp.write_text(json.dumps(timings, indent=1))
+    os.replace(tmp, path)  # two runs on one WORK (other --prior-seeds) never read a half-written file
     return result
 
 
@@ -258,13 +261,14 @@ def train_and_score(
 
 
 def score(args: argparse.Namespace, work: Path, name: str, judge: Judge, split: StyleSplit) -> dict:
-    path = work / "scores" / f"{name}.json"
+    scored = name if args.samples == 1 else f"{name}-x{args.samples}"
+    path = work / "scores" / f"{scored}.json"
     if path.is_file():
         return json.loads(path.read_text())
-    log(f"scoring {name}")
+    log(f"scoring {scored}")
     figures = timed(
         work,
-        f"score_{name}",
+        f"score_{scored}",
         lambda: score_prior(
             work / "priors" / name,
             work / "split" / HELD_OUT_DIR,
@@ -274,6 +278,7 @@ def score(args: argparse.Namespace, work: Path, name: str, judge: Judge, split: 
             guidance=args.guidance,
             steps=args.ddim,
             seed=args.seed,
+            samples=args.samples,
         ),
     )
     path.parent.mkdir(exist_ok=True)
@@ -427,6 +432,7 @@ def main() -> None:
     parser.add_argument("--guidance", type=float, default=3.0)
     parser.add_argument("--ddim", type=int, default=20)
     parser.add_argument("--seed", type=int, default=0, help="sampling seed")
+    parser.add_argument("--samples", type=int, default=1, help="samples per held-out caption (scores/NAME-xK.json)")
     parser.add_argument(
         "--prior-seeds", default="0", help="comma-separated: A, B and C are each pre-trained once per seed; means"
     )

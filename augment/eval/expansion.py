@@ -290,9 +290,10 @@ def _with_motions(data: MotionSet, motions: list[torch.Tensor], captions: list[l
     )
 
 
-def one_row_per_caption(data: MotionSet) -> MotionSet:
-    """Every (clip, caption) pair as its own entry: about three samples per held-out clip instead of one."""
-    rows = [(i, c) for i, caps in enumerate(data.captions) for c in caps]
+def one_row_per_caption(data: MotionSet, repeats: int = 1) -> MotionSet:
+    """Every (clip, caption) pair as its own entry, ``repeats`` times: about three samples per held-out clip instead
+    of one, times ``repeats`` draws of the sampler's noise (a recognition rate on few captions is noisy)."""
+    rows = [(i, c) for i, caps in enumerate(data.captions) for c in caps for _ in range(repeats)]
     index = torch.tensor([i for i, _ in rows])
     return MotionSet(
         ids=[f"{data.ids[i]}#{c}" for i, c in rows],
@@ -396,8 +397,10 @@ def score_prior(
     steps: int = 20,
     seed: int = 0,
     batch_size: int = 50,
+    samples: int = 1,
 ) -> dict[str, dict]:
-    """Sample every caption of every held-out clip with the prior at ``prior_dir`` and judge the motion.
+    """Sample every caption of every held-out clip ``samples`` times with the prior at ``prior_dir`` and judge the
+    motion.
 
     Returns figures per group (``neutral`` captions, captions naming a ``present`` style, ``style_prompted``
     captions naming a missing style) and ``all``: content and style recognition by the judge's classifiers
@@ -413,7 +416,7 @@ def score_prior(
     labels = (judge.classifiers.content_labels, judge.classifiers.style_labels)
     clips = read_clips(held_out, split_ids(held_out, "test"))
     data = build_motion_set(clips, models.normalizer, models.text_encoder, *labels)
-    rows = one_row_per_caption(data)
+    rows = one_row_per_caption(data, samples)
     generated = generate(models, rows, guidance or None, steps, batch_size, seed)
     skeleton = skeleton_for(models.normalizer.dim)
     frames = models.info.max_frames
