@@ -256,12 +256,21 @@ def train_and_score(
     runs = []
     for seed in args.prior_seeds:
         pretrain(args, work, seeded(name, seed), corpus, prior_config(args, seed))
-        runs.append(score(args, work, seeded(name, seed), judge, split))
+        figures = score(args, work, seeded(name, seed), judge, split)
+        if args.neutral_samples:
+            figures["neutral_precise"] = score(args, work, seeded(name, seed), judge, split, neutral_only=True)
+        runs.append(figures)
     return {"mean": mean_figures(runs), "seeds": dict(zip(map(str, args.prior_seeds), runs))}
 
 
-def score(args: argparse.Namespace, work: Path, name: str, judge: Judge, split: StyleSplit) -> dict:
-    scored = name if args.samples == 1 else f"{name}-x{args.samples}"
+def score(
+    args: argparse.Namespace, work: Path, name: str, judge: Judge, split: StyleSplit, neutral_only: bool = False
+) -> dict:
+    """``score_prior``'s figures, or with ``neutral_only`` the neutral group's, each caption ``--neutral-samples``
+    times: the content target's figure, measured on enough samples to be read to a point."""
+    samples = args.neutral_samples if neutral_only else args.samples
+    scored = f"{name}-neutral" if neutral_only else name
+    scored = scored if samples == 1 else f"{scored}-x{samples}"
     path = work / "scores" / f"{scored}.json"
     if path.is_file():
         return json.loads(path.read_text())
@@ -278,12 +287,13 @@ def score(args: argparse.Namespace, work: Path, name: str, judge: Judge, split: 
             guidance=args.guidance,
             steps=args.ddim,
             seed=args.seed,
-            samples=args.samples,
+            samples=samples,
+            groups=["neutral"] if neutral_only else None,
         ),
     )
     path.parent.mkdir(exist_ok=True)
-    path.write_text(json.dumps(figures, indent=1))
-    return figures
+    path.write_text(json.dumps(figures if not neutral_only else figures["neutral"], indent=1))
+    return figures if not neutral_only else figures["neutral"]
 
 
 def added_recognition(work: Path, judge: Judge, name: str) -> dict[str, Any]:
@@ -303,12 +313,17 @@ def added_recognition(work: Path, judge: Judge, name: str) -> dict[str, Any]:
     return out
 
 
+def neutral_of(figures: dict[str, Any]) -> dict[str, Any]:
+    """The neutral captions' figures the content target reads: ``--neutral-samples``' when scored."""
+    return figures.get("neutral_precise") or figures["neutral"]
+
+
 def spread(by_seed: dict[str, dict[str, Any]]) -> dict[str, dict[str, float]]:
     """Per training set, the two target figures' standard deviation over prior seeds, in points."""
     out = {}
     for name, runs in by_seed.items():
         style = [r["style_prompted"]["style"] for r in runs["seeds"].values()]
-        content = [r["neutral"]["content"] for r in runs["seeds"].values()]
+        content = [neutral_of(r)["content"] for r in runs["seeds"].values()]
         out[name] = {
             "style_sd_points": 100 * float(np.std(style)),
             "neutral_content_sd_points": 100 * float(np.std(content)),
@@ -326,12 +341,13 @@ def summarise(scores: dict[str, dict], methods: list[str]) -> dict[str, Any]:
         out[method] = {
             "style_gain_points": 100 * (sra[1] - sra[0]),
             "style_share_of_C": gain_share(*sra),
-            "neutral_content_drop_points": 100 * (a["neutral"]["content"] - b["neutral"]["content"]),
-            "C_neutral_content_drop_points": 100 * (a["neutral"]["content"] - c["neutral"]["content"]),
+            "neutral_content_drop_points": 100 * (neutral_of(a)["content"] - neutral_of(b)["content"]),
+            "C_neutral_content_drop_points": 100 * (neutral_of(a)["content"] - neutral_of(c)["content"]),
+            "neutral_samples": neutral_of(b)["samples"],
             "targets_met": {
                 "style >= A + 40 points": sra[1] - sra[0] >= 0.40,
                 "style >= 70% of the way to C": (gain_share(*sra) or 0.0) >= 0.70,
-                "neutral content <= 3 points below A": a["neutral"]["content"] - b["neutral"]["content"] <= 0.03,
+                "neutral content <= 3 points below A": neutral_of(a)["content"] - neutral_of(b)["content"] <= 0.03,
             },
         }
     return out
@@ -356,7 +372,7 @@ def table(scores: dict[str, dict]) -> str:
         p, n, a = s["style_prompted"], s["neutral"], s["all"]
         lines.append(
             f"| {name} | {pct(p['style'])} | {pct(p['content'])} | {num(p['fmd'])} | {pct(p['r1'])} | {pct(p['r3'])} "
-            f"| {num(p['diversity'])} | {pct(n['content'])} | {pct(n['style'])} | {num(n['fmd'])} "
+            f"| {num(p['diversity'])} | {pct(neutral_of(s)['content'])} | {pct(n['style'])} | {num(n['fmd'])} "
             f"| {pct(a['content'])} | {pct(a['r1'])} | {pct(a['r3'])} |"
         )
     real = next(iter(scores.values()))
@@ -381,7 +397,7 @@ def plot(scores: dict[str, dict], out: Path, title: str) -> list[Path]:
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
     panels = (
         ("style recognition, style-prompted captions (%)", [scores[n]["style_prompted"]["style"] for n in names]),
-        ("content recognition, neutral captions (%)", [scores[n]["neutral"]["content"] for n in names]),
+        ("content recognition, neutral captions (%)", [neutral_of(scores[n])["content"] for n in names]),
         ("R@3, style-prompted captions (%)", [scores[n]["style_prompted"]["r3"] for n in names]),
     )
     for ax, (label, values) in zip(axes, panels):
@@ -433,6 +449,9 @@ def main() -> None:
     parser.add_argument("--ddim", type=int, default=20)
     parser.add_argument("--seed", type=int, default=0, help="sampling seed")
     parser.add_argument("--samples", type=int, default=1, help="samples per held-out caption (scores/NAME-xK.json)")
+    parser.add_argument(
+        "--neutral-samples", type=int, default=0, help="also score the neutral captions K times (the content target)"
+    )
     parser.add_argument(
         "--prior-seeds", default="0", help="comma-separated: A, B and C are each pre-trained once per seed; means"
     )

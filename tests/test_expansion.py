@@ -121,8 +121,17 @@ def test_three_trainings_lower_their_loss_and_are_scored(split: Path, text_encod
         assert 0.0 <= group["content"] <= 1.0 and 0.0 <= group["style"] <= 1.0
         assert group["diversity"] is None or group["diversity"] > 0
     assert figures["all"]["fmd"] is not None and figures["all"]["fmd"] >= 0
-    twice = score_prior(tmp_path / "prior_C", split / HELD_OUT_DIR, judge, MISSING, steps=4, batch_size=16, samples=2)
-    assert twice["neutral"]["samples"] == 2 * figures["neutral"]["samples"]
+    twice = score_prior(
+        tmp_path / "prior_C",
+        split / HELD_OUT_DIR,
+        judge,
+        MISSING,
+        steps=4,
+        batch_size=16,
+        samples=2,
+        groups=["neutral"],
+    )
+    assert list(twice) == ["neutral"] and twice["neutral"]["samples"] == 2 * figures["neutral"]["samples"]
 
 
 def test_gain_share() -> None:
