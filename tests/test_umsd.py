@@ -6,6 +6,7 @@ Everything runs at tiny sizes on a 24-clip synthetic corpus (a few seconds of re
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 from pathlib import Path
 
@@ -272,6 +273,14 @@ def test_zero_shot_transfer_of_a_held_out_style(corpus: Path, tmp_path: Path) ->
     alone = model.transfer([content[1]], seed=3)[0]
     np.testing.assert_allclose(alone.motion, outputs[2].motion, atol=1e-4)
     assert not np.allclose(model.transfer([content[1]], seed=4)[0].motion, alone.motion)
+    # style guidance: stronger than the plain transfer, and a no-op when the example is the content itself
+    guided = UmsdMethod({**params, "guidance": "style", "guidance_scale": 2.0})
+    stronger = guided.load(artifact, trained).transfer([content[1]], seed=3)[0]
+    assert np.isfinite(stronger.motion).all() and not np.allclose(stronger.motion, alone.motion, atol=1e-3)
+    short = dataclasses.replace(content[1], id="short", motion=content[1].motion[:longest])
+    itself = guided.prepare(style, [short], trained, [], tmp_path / "itself")
+    plain = method.load(itself, trained).transfer([short], seed=3)[0].motion
+    np.testing.assert_allclose(guided.load(itself, trained).transfer([short], seed=3)[0].motion, plain, atol=1e-4)
 
     (trained / "umsd.json").write_text((trained / "umsd.json").read_text() + " ", encoding="utf-8")
     with pytest.raises(MotionDataError, match="prepared for UMSD network"):

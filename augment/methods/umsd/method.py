@@ -80,9 +80,12 @@ class UmsdParams(BaseModel):
         le=NUM_TIMESTEPS,
         description="1000: sample from pure noise (the paper); K < 1000: start from the content noised to step K",
     )
-    guidance: Literal["none"] = Field(
-        "none", description="no classifier-free guidance: the network is trained without condition dropout"
+    guidance: Literal["none", "style"] = Field(
+        "none",
+        description="style: x0(c, c) + w (x0(c, s) - x0(c, c)), the content as its own style example standing in "
+        "for no style (Eq. 10's rows teach that it gives the content back); none: x0(c, s)",
     )
+    guidance_scale: float = Field(1.0, ge=0.0, description="w of style guidance (1: none; > 1: more of the style)")
     keep: Literal["horizontal", "root", "none"] = Field(
         "horizontal", description="content channels kept by inpainting: root xz + yaw velocities (+ height: root)"
     )
@@ -306,11 +309,13 @@ class UmsdStyleModel:
         U(content, style) computed once; the kept channels are inpainted from the content. Normalised (B, T, F)."""
         p = self.params
         partial = p.transfer_noise_step < NUM_TIMESTEPS
+        guided = p.guidance == "style" and p.guidance_scale != 1.0
         with bf16_autocast(p.bf16):
             cond = self.net.condition(content.x, content.mask, style, style_mask)
+            own = self.net.condition(content.x, content.mask, content.x, content.mask) if guided else cond
 
             def model_fn(x_t: torch.Tensor, t: torch.Tensor, *, uncond: bool = False) -> torch.Tensor:
-                out = self.net.denoise(x_t, t, cond, content.mask).to(x_t.dtype)
+                out = self.net.denoise(x_t, t, own if uncond else cond, content.mask).to(x_t.dtype)
                 if self.model.info.train.skip == "none":
                     return out
                 return skip_x0(self.schedule, x_t, t, out, *self.model.skip_prior)
@@ -324,6 +329,7 @@ class UmsdStyleModel:
                 x_start=content.x if partial else None,
                 noise=noise,
                 inpaint=content.inpaint(self.kept) if self.kept else None,
+                guidance_scale=p.guidance_scale if guided else None,
             ).float()
 
     def window_size(self) -> int:
