@@ -291,9 +291,10 @@ def score(
             groups=["neutral"] if neutral_only else None,
         ),
     )
+    figures = figures["neutral"] if neutral_only else figures
     path.parent.mkdir(exist_ok=True)
-    path.write_text(json.dumps(figures if not neutral_only else figures["neutral"], indent=1))
-    return figures if not neutral_only else figures["neutral"]
+    path.write_text(json.dumps(figures, indent=1))
+    return figures
 
 
 def added_recognition(work: Path, judge: Judge, name: str) -> dict[str, Any]:
