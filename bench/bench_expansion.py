@@ -19,7 +19,9 @@ Stages, each reused from WORK when finished (rerun the same command to resume):
 5. per method: ``motionaug run`` stylizes A's ``expand`` clips (neutral train clips) into every missing style,
    their stylized clips are merged with A in its train split (B), prior B.
 6. C: A plus the true stylized clips (synthetic: the ``expand`` clips re-rendered in each missing style; bandai2:
-   the real train takes of the missing styles), prior C.
+   the real train takes of the missing styles), prior C. ``--added-share S``: B's and C's priors draw S of their
+   clips from the added ones (the merged corpus's ``added.txt``) and the rest from A's clips, whose share uniform
+   draws would dilute by the number of added styles; A's prior is the same either way.
 7. scoring (``score_prior``): every caption of every held-out clip, ``--samples`` times, DDIM-``--ddim`` with
    guidance ``--guidance``, judged by the judge. Writes WORK/results.json, prints a Markdown table; ``--plots DIR``
    writes the PNGs.
@@ -95,6 +97,7 @@ def prior_config(args: argparse.Namespace, seed: int = 0) -> PretrainConfig:
         encoder_steps=args.encoder_steps,
         classifier_size="tiny",
         classifier_epochs=args.classifier_epochs,
+        added_share=args.added_share,
         threads=args.threads,
     )
 
@@ -455,6 +458,12 @@ def main() -> None:
     )
     parser.add_argument(
         "--prior-seeds", default="0", help="comma-separated: A, B and C are each pre-trained once per seed; means"
+    )
+    parser.add_argument(
+        "--added-share",
+        type=float,
+        default=None,
+        help="B's and C's priors draw this share of their clips from the added ones (A has none); default: uniform",
     )
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--method-base", choices=("own", "A"), default="own", help="the methods' base models")

@@ -24,7 +24,7 @@ from motionaug.augment.eval.expansion import (
 )
 from motionaug.augment.synth import STYLE_WORDS, generate_corpus
 from motionaug.augment.training.data import read_clips, split_ids
-from motionaug.augment.training.pretrain import PretrainConfig, pretrain
+from motionaug.augment.training.pretrain import PretrainConfig, for_corpus, pretrain
 from motionaug.models.text_encoder import make_text_encoder
 from motionaug.schemas.errors import MotionDataError
 from motionaug.workflows.cli import app
@@ -101,11 +101,15 @@ def test_three_trainings_lower_their_loss_and_are_scored(split: Path, text_encod
     }
     assert sizes["C"]["train"] == info.base_splits["train"] + len(truth)
     assert sizes["C"]["test"] == info.base_splits["test"]
+    assert split_ids(tmp_path / "C", "added") == [c.id for c in truth]
     with pytest.raises(MotionDataError, match="not empty"):
         merge_clips(base, truth, tmp_path / "C")
+    shared = tiny(added_share=0.5)  # B and C draw half their clips from the added ones; A has none to weigh
+    hashes = [for_corpus(shared, corpus).config_hash() for corpus in (base, tmp_path / "C")]
+    assert hashes[0] == tiny().config_hash() != hashes[1]
     for name in ("A", "B", "C"):
         corpus = base if name == "A" else tmp_path / name
-        pretrain(corpus, tmp_path / f"prior_{name}", tiny(), text_encoder=text_encoder)
+        pretrain(corpus, tmp_path / f"prior_{name}", shared, text_encoder=text_encoder)
         losses = [
             json.loads(line)["loss"]
             for line in (tmp_path / f"prior_{name}" / "loss_log.jsonl").read_text().splitlines()

@@ -71,6 +71,7 @@ def test_humanml3d_export_loads_and_keeps_stylized_clips_in_train(run_dir: Path,
     stylized = [i for i in _ids(out, "all") if "__" in i]
     assert summary.originals == N_CLIPS and summary.stylized == len(stylized) == 2 * len(_ids(source, "train"))
     assert set(stylized) <= set(train) and not {i for i in val + test if "__" in i}
+    assert sorted(_ids(out, "added")) == sorted(stylized)  # what `added_share` pre-training reads
     assert val == _ids(source, "val") and test == _ids(source, "test")
     assert set(_ids(out, "train_val")) == set(train) | set(val)
     clips = {c.id: c for c in HumanML3DReader(out, split="all", on_error="raise")}

@@ -19,7 +19,14 @@ from motionaug.augment.eval.evaluation import load_classifiers
 from motionaug.augment.motion.features import Normalizer, feature_slices
 from motionaug.augment.synth import generate_corpus
 from motionaug.augment.training.base_models import BaseModels, BaseModelsInfo
-from motionaug.augment.training.data import build_motion_set, iter_batches, read_clips, sample_batch, split_ids
+from motionaug.augment.training.data import (
+    build_motion_set,
+    iter_batches,
+    read_clips,
+    sample_batch,
+    share_weights,
+    split_ids,
+)
 from motionaug.augment.training.geometric_losses import (
     foot_contact_loss,
     geometric_losses,
@@ -198,6 +205,21 @@ def test_training_batches_crop_pad_mask_and_caption(corpus: Path, text_encoder) 
     torch.testing.assert_close(first.motion[0, : data.motions[0].shape[0]], data.motions[0])
     again = sample_batch(data, 6, 40, torch.Generator().manual_seed(0), bucket=8)
     assert torch.equal(again.motion, batch.motion) and torch.equal(again.index, batch.index)
+
+
+def test_weighted_draws_give_the_added_clips_their_share(corpus: Path, text_encoder) -> None:
+    data = build_motion_set(read_clips(corpus, split_ids(corpus, "train")), Normalizer.load(corpus), text_encoder)
+    rows_added = list(range(0, len(data), 3))  # spread over every length, as an expansion's clips are
+    weights = share_weights(data.ids, [data.ids[i] for i in rows_added], 0.8)  # uniform would give them ~1/3
+    assert torch.isclose(weights.sum(), torch.tensor(1.0, dtype=weights.dtype))
+    generator = torch.Generator().manual_seed(0)
+    for bucket in (None, 8):
+        rows = torch.cat([sample_batch(data, 50, 40, generator, bucket, weights).index for _ in range(100)])
+        share = float(np.isin(rows.numpy(), rows_added).mean())
+        assert abs(share - 0.8) < 0.05, (bucket, share)
+    for wrong in ([], data.ids):
+        with pytest.raises(MotionDataError, match="added_share"):
+            share_weights(data.ids, wrong, 0.5)
 
 
 def test_split_without_files_is_a_stable_hash_split(corpus: Path, tmp_path: Path) -> None:

@@ -32,6 +32,7 @@ from motionaug.schemas.errors import MotionDataError
 MOTION_DIR = "new_joint_vecs"
 TEXT_DIR = "texts"
 LABELS_FILE = "labels.jsonl"
+ADDED_SPLIT = "added"  # split file of an expanded corpus: the train clips the expansion added
 SAFE_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,199}")
 HUMANML3D_FPS = 20.0
 

@@ -21,7 +21,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field
 
 from motionaug.augment.corpus.clip import MotionClip
-from motionaug.augment.corpus.humanml3d import write_humanml3d
+from motionaug.augment.corpus.humanml3d import ADDED_SPLIT, write_humanml3d
 from motionaug.augment.diffusion import bind_model, ddim_sample
 from motionaug.augment.eval.evaluation import Classifiers, load_classifiers
 from motionaug.augment.eval.metrics import diversity, frechet_distance, retrieval_r_at_k
@@ -244,7 +244,8 @@ def run_clips(run_dir: str | Path) -> Iterator[MotionClip]:
 
 def merge_clips(base: str | Path, extra: Iterable[MotionClip], out: str | Path) -> dict[str, int]:
     """``base`` (all its splits) plus ``extra`` clips in its train split, as a new HumanML3D folder; returns the
-    split sizes. Mean/Std come from the merged train split, as ``motionaug export`` does for an expanded corpus."""
+    split sizes. Mean/Std come from the merged train split, and ``added.txt`` lists the extra clips, as
+    ``motionaug export`` does for an expanded corpus."""
     base, root = Path(base), Path(out)
     if root.exists() and any(root.iterdir()):
         raise MotionDataError(str(root), "folder is not empty; the merged corpus is written into a new folder")
@@ -254,6 +255,7 @@ def merge_clips(base: str | Path, extra: Iterable[MotionClip], out: str | Path) 
     if not added:
         raise MotionDataError(str(base), "nothing to merge: no extra clips")
     splits["train"] = splits.get("train", []) + [c.id for c in added]
+    splits[ADDED_SPLIT] = [c.id for c in added]
     _write_corpus([*clips, *added], root, splits)
     return {k: len(v) for k, v in splits.items()}
 

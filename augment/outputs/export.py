@@ -24,6 +24,7 @@ import numpy as np
 
 from motionaug.augment.corpus import Corpus, HumanML3DReader, ParquetCorpusWriter, write_humanml3d
 from motionaug.augment.corpus.clip import MotionClip
+from motionaug.augment.corpus.humanml3d import ADDED_SPLIT
 from motionaug.augment.io import atomic_write_text
 from motionaug.augment.motion.features import Normalizer, compute_mean_std
 from motionaug.augment.outputs.run_dir import RunDir
@@ -64,7 +65,7 @@ class _Collector:
         self.min_score, self.score_name = min_score, score_name
         self.evaluated = evaluated  # output_id -> content score from scores.parquet (``motionaug evaluate``)
         self.summary = summary
-        self.splits: dict[str, list[str]] = {"train": [], "val": [], "test": []}
+        self.splits: dict[str, list[str]] = {"train": [], "val": [], "test": [], ADDED_SPLIT: []}
 
     def clips(self) -> Iterator[MotionClip]:
         yield from self._originals()
@@ -90,6 +91,7 @@ class _Collector:
                 self.summary.below_score += 1
                 continue
             self.splits["train"].append(row["output_id"])
+            self.splits[ADDED_SPLIT].append(row["output_id"])
             self.summary.stylized += 1
             yield row_clip(row, f"motionaug:{self.run_id}", {"run_id": self.run_id})
 

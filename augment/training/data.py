@@ -9,7 +9,7 @@ resumed run draws exactly the batches an uninterrupted one would.
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
 
@@ -165,14 +165,38 @@ def collate(data: MotionSet, index: Tensor, max_frames: int, generator: torch.Ge
 
 
 def sample_batch(
-    data: MotionSet, batch_size: int, max_frames: int, generator: torch.Generator, bucket: int | None = None
+    data: MotionSet,
+    batch_size: int,
+    max_frames: int,
+    generator: torch.Generator,
+    bucket: int | None = None,
+    weights: Tensor | None = None,
 ) -> Batch:
     """``batch_size`` clips drawn with replacement, each randomly cropped and captioned.
 
-    ``bucket``: draw them from ``bucket`` clips of neighbouring length (around a uniformly drawn one), so a
-    batch wastes little compute on padding. Near-uniform per clip; clips at the length extremes come up a
-    little more often, as windows are shifted to fit inside the length ranking.
+    ``bucket``: draw them from ``bucket`` clips of neighbouring length (around a drawn one), so a batch wastes
+    little compute on padding. Near-uniform per clip; clips at the length extremes come up a little more often,
+    as windows are shifted to fit inside the length ranking. ``weights`` (one per clip, any scale): draw clips in
+    proportion to them instead of uniformly (:func:`share_weights`), the anchor too; with ``bucket`` that holds
+    where the weights are spread over lengths (an expansion's clips keep their sources' lengths). None keeps the
+    uniform draws bit for bit.
     """
+    if weights is None:
+        return _sample_uniform(data, batch_size, max_frames, generator, bucket)
+    if bucket is None or bucket >= len(data):
+        index = torch.multinomial(weights, batch_size, replacement=True, generator=generator)
+    else:
+        by_length = torch.argsort(data.lengths, stable=True)
+        rank = int(torch.argsort(by_length)[torch.multinomial(weights, 1, generator=generator)])
+        first = min(max(rank - bucket // 2, 0), len(data) - bucket)
+        window = by_length[first : first + bucket]
+        index = window[torch.multinomial(weights[window], batch_size, replacement=True, generator=generator)]
+    return collate(data, index, max_frames, generator)
+
+
+def _sample_uniform(
+    data: MotionSet, batch_size: int, max_frames: int, generator: torch.Generator, bucket: int | None
+) -> Batch:
     if bucket is None or bucket >= len(data):
         index = torch.randint(0, len(data), (batch_size,), generator=generator)
     else:
@@ -181,6 +205,18 @@ def sample_batch(
         first = min(max(anchor - bucket // 2, 0), len(data) - bucket)
         index = by_length[first + torch.randint(0, bucket, (batch_size,), generator=generator)]
     return collate(data, index, max_frames, generator)
+
+
+def share_weights(ids: Sequence[str], added: Iterable[str], share: float) -> Tensor:
+    """Per-clip draw weights giving the ``added`` clips ``share`` of the draws and the others the rest, each
+    group uniform within itself. Why: an expansion adds several stylized clips per original, so uniform draws
+    would dilute the original clips (and their content) by that factor."""
+    added = set(added)
+    is_added = torch.tensor([i in added for i in ids], dtype=torch.bool)
+    n_added = int(is_added.sum())
+    if n_added in (0, len(ids)):
+        raise MotionDataError("added_share", f"needs both added and original train clips ({n_added} of {len(ids)})")
+    return torch.where(is_added, share / n_added, (1 - share) / (len(ids) - n_added)).double()
 
 
 def iter_batches(data: MotionSet, batch_size: int, max_frames: int) -> Iterator[Batch]:

@@ -35,7 +35,7 @@ import torch.distributed as dist
 from pydantic import BaseModel, ConfigDict, Field
 from torch import Tensor, nn
 
-from motionaug.augment.corpus.humanml3d import HumanML3DReader
+from motionaug.augment.corpus.humanml3d import ADDED_SPLIT, HumanML3DReader
 from motionaug.augment.device import bf16_autocast, pick_device
 from motionaug.augment.diffusion import NoiseSchedule, masked_mse, q_sample, sample_timesteps
 from motionaug.augment.eval.inputs import features_to_joints, pad_batch
@@ -57,6 +57,7 @@ from motionaug.augment.training.data import (
     iter_batches,
     read_clips,
     sample_batch,
+    share_weights,
     split_ids,
 )
 from motionaug.augment.training.evaluators import (
@@ -120,6 +121,13 @@ class PretrainConfig(BaseModel):
         description="DDPM-IP (Ning et al. 2023): the prior's input carries this much extra N(0, I) noise on top "
         "of the noise q_sample adds, so it learns to correct the drift its own predictions put into x_t when sampling.",
     )
+    added_share: float | None = Field(
+        None,
+        gt=0,
+        lt=1,
+        description="Share of the prior's and encoder's draws given to the clips an expansion added (the corpus's "
+        "added.txt); None: every train clip alike. Ignored for a corpus without added clips.",
+    )
     prior_latent_dim: int | None = Field(None, ge=8, description="Prior width; None = the size's MDM preset.")
     prior_ff_size: int | None = Field(None, ge=8, description="Prior feed-forward width; None = the size's preset.")
     prior_layers: int | None = Field(None, ge=1, description="Prior transformer layers; None = the size's preset.")
@@ -171,6 +179,7 @@ class PretrainConfig(BaseModel):
     def config_hash(self) -> str:
         """Hash of every field that changes the trained weights (the MDM files count by content, in the fingerprint)."""
         ignored = {"threads", "checkpoint_every", "log_every", "from_mdm", "clip_weights", "mdm_stats"}
+        ignored |= {"added_share"} if self.added_share is None else set()  # hashes from before the field stay valid
         relevant = self.model_dump(exclude=ignored)
         return hashlib.sha256(json.dumps(relevant, sort_keys=True).encode()).hexdigest()[:16]
 
@@ -268,6 +277,7 @@ class Run:
     test: MotionSet
     run_hash: str
     progress: ProgressFn | None
+    weights: Tensor | None = None  # per train clip draw weights (``added_share``); None: uniform
     metrics: dict[str, float] = field(default_factory=dict)
     parallel: Parallel = SINGLE
     device: torch.device = CPU
@@ -426,7 +436,9 @@ def _train_loop(
         lr = lr_at(run.config, base_lr, loop.step / total, loop.step)
         for group in optimizer.param_groups:
             group["lr"] = lr
-        batch = sample_batch(run.train, run.config.batch_size, run.config.max_frames, loop.generator, run.config.bucket)
+        batch = sample_batch(
+            run.train, run.config.batch_size, run.config.max_frames, loop.generator, run.config.bucket, run.weights
+        )
         loss, parts = loss_fn(batch, loop.generator)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
@@ -690,6 +702,20 @@ def train_evaluators(run: Run) -> dict[str, MotionClassifier | None]:
 # ---- the whole procedure ----------------------------------------------------------------------
 
 
+def for_corpus(config: PretrainConfig, corpus_dir: str | Path) -> PretrainConfig:
+    """``config`` as it acts on this corpus: ``added_share`` is dropped where no clips were added, so a base
+    corpus trained under the expanded corpora's config keeps the models (and hash) of the plain one."""
+    if config.added_share is not None and not (Path(corpus_dir) / f"{ADDED_SPLIT}.txt").is_file():
+        return config.model_copy(update={"added_share": None})
+    return config
+
+
+def _weights(config: PretrainConfig, corpus_dir: Path, train: MotionSet) -> Tensor | None:
+    if config.added_share is None:
+        return None
+    return share_weights(train.ids, split_ids(corpus_dir, ADDED_SPLIT), config.added_share)
+
+
 def run_hash(config: PretrainConfig, fingerprint: str) -> str:
     """What checkpoints are keyed by: the config and the corpus together."""
     return hashlib.sha256(f"{config.config_hash()}:{fingerprint}".encode()).hexdigest()[:16]
@@ -721,9 +747,9 @@ def pretrain(
     data-parallel run every process trains the prior and the motion encoder together; then the lead alone
     trains the small evaluators and saves, and the other processes return None.
     """
-    config = config or PretrainConfig()
-    device = device or pick_device()
     corpus, out = Path(corpus_dir), Path(out_dir)
+    config = for_corpus(config or PretrainConfig(), corpus)
+    device = device or pick_device()
     fingerprint = corpus_fingerprint(corpus)
     _threads(config)
     out.mkdir(parents=True, exist_ok=True)
@@ -733,7 +759,7 @@ def pretrain(
     run = Run(
         config, out, normalizer, skeleton_for(normalizer.dim), train, test, run_hash(config, fingerprint), progress
     )
-    run.parallel, run.device = parallel, device
+    run.parallel, run.device, run.weights = parallel, device, _weights(config, corpus, train)
     prior = train_prior(run)
     motion_encoder = train_motion_encoder(run, prior)
     if not parallel.lead:
@@ -817,6 +843,7 @@ def ensure_base_models(
             raise MotionDataError("pretrain --workers", "not supported with --from-mdm, which trains in one process")
         return ensure_from_mdm(corpus_dir, out_dir, source_of(config), config, progress)
     out = Path(out_dir)
+    config = for_corpus(config, corpus_dir)
     fingerprint = corpus_fingerprint(corpus_dir)
     if _complete(out, fingerprint, config.config_hash()):
         return out
