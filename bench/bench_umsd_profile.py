@@ -1,12 +1,12 @@
 """Seconds per UMSD training step at chosen sizes, and where a step's time goes (torch.profiler).
 
-Usage: python bench/bench_umsd_profile.py --corpus CORPUS [--neutral normal] [--steps 6] [--profile]
-       [key=value ...]
+Usage: python bench/bench_umsd_profile.py --corpus CORPUS [--neutral normal] [--steps 6] [--threads 1]
+       [--profile] [key=value ...]
 
 ``key=value``: ``UmsdTrainConfig`` fields (e.g. ``max_frames=96 batch_size=6``). Every clip of ``CORPUS`` is used
-(the speed does not depend on the split). After two warm-up steps, ``--steps`` sampled steps are timed at one
-thread; ``--profile`` adds the ten most expensive operators of one forward + backward. The machine's load average
-is printed beside the figures: on a shared machine the times mostly measure the scheduler.
+(the speed does not depend on the split). After two warm-up steps, ``--steps`` sampled steps are timed at
+``--threads`` (1); ``--profile`` adds the ten most expensive operators of one forward + backward. The machine's
+load average is printed beside the figures: on a shared machine the times mostly measure the scheduler.
 """
 
 from __future__ import annotations
@@ -31,9 +31,10 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--neutral", default="normal")
     parser.add_argument("--steps", type=int, default=6)
     parser.add_argument("--profile", action="store_true")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (training's ``threads``)")
     parser.add_argument("fields", nargs="*", help="UmsdTrainConfig key=value")
     args = parser.parse_args(argv)
-    torch.set_num_threads(1)
+    torch.set_num_threads(args.threads)
     fields = parse_sets(args.fields)
     config = UmsdTrainConfig(**fields)
     clips = [replace(c, style="neutral") if c.style == args.neutral else c for c in Corpus(args.corpus)]
@@ -48,6 +49,7 @@ def main(argv: list[str] | None = None) -> dict:
     seconds = (time.perf_counter() - start) / args.steps
     result = {
         "fields": fields,
+        "threads": args.threads,
         "parameters": sum(p.numel() for p in trainer.net.parameters()),
         "s_per_step": round(seconds, 3),
         "steps_per_s": round(1 / seconds, 3),

@@ -180,6 +180,10 @@ def score(
         except MotionDataError:
             fmd, n_fmd, floor = float("nan"), min(len(content_feats), len(real_feats)), float("nan")
         predicted = np.bincount(style_probs.argmax(1), minlength=len(judges.style_labels))
+        misread: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))  # source content -> read as
+        for i, c in zip(content_probs.argmax(1), contents):
+            if judges.content_labels[int(i)] != c:
+                misread[str(c)][judges.content_labels[int(i)]] += 1
         rows[style] = {
             "clips": len(outs),
             "cra": cra_hits / len(outs),
@@ -187,6 +191,7 @@ def score(
             "sra": sra_hits / len(outs),
             "sra_95": wilson(sra_hits, len(outs)),
             "predicted_styles": {lab: int(n) for lab, n in zip(judges.style_labels, predicted) if n},
+            "content_misread": {c: dict(v) for c, v in sorted(misread.items())},
             "fmd": fmd,
             "fmd_real_train_vs_held_out": floor,
             "fmd_samples": n_fmd,

@@ -56,6 +56,7 @@ class UmsdConfig:
     denoiser: str = "msm"  # "msm" (sec. 3.3) or "transformer" (ablation, sec. 4.5)
     use_ssm: bool = True  # False: Eq. 7 without Phi+ / Phi- (the linear + causal conv branch only)
     use_mha: bool = True  # False: Eq. 8 without its MHA term
+    align_content: bool = False  # True: also add each content token to the noisy token of its frame (not in the paper)
 
     def __post_init__(self) -> None:
         if self.denoiser not in DENOISERS:
@@ -287,6 +288,13 @@ class TransformerDenoiser(nn.Module):
 # ---- packing ----------------------------------------------------------------------------------------------------
 
 
+def frame_aligned(content: Tensor, frames: int) -> Tensor:
+    """Content tokens (B, Tc, d), zero at padding, cut or zero-padded to ``frames``: token i is content frame i."""
+    if content.shape[1] >= frames:
+        return content[:, :frames]
+    return F.pad(content, (0, 0, 0, frames - content.shape[1]))
+
+
 def pack(tokens: list[Tensor], masks: list[Tensor]) -> tuple[Tensor, Tensor, Tensor]:
     """Concatenate segments (B, L_i, d) along time keeping only real tokens, in order, padding at the end.
 
@@ -324,6 +332,9 @@ class UmsdNet(nn.Module):
         # Which part of Eq. 6 a token belongs to: each part's positions restart at 0, so the denoiser could not
         # otherwise tell a content frame from a noisy frame at the same position (not in the paper).
         self.segment = nn.Embedding(len(SEGMENTS), d)
+        # Eq. 6 reaches content frame i from noisy frame i only through the token mixers (SSM scans over the whole
+        # stream, one MHA); ``align_content`` adds a frame-to-frame path beside the concatenation (not in the paper).
+        self.align = nn.Linear(d, d) if config.align_content else None
         self.dropout = nn.Dropout(config.dropout)
         self.denoiser: nn.Module = MsmDenoiser(config) if config.denoiser == "msm" else TransformerDenoiser(config)
         self.out = nn.Linear(d, config.n_feats)
@@ -346,6 +357,8 @@ class UmsdNet(nn.Module):
             raise MotionDataError("UmsdNet", f"timesteps {tuple(t.shape)} / condition batch do not match ({batch},)")
         seg = self.segment.weight.to(x_t.dtype)
         x_tok = self.dropout(self.x_in(x_t) + self.pe[:frames].to(x_t.dtype)) + seg[0]
+        if self.align is not None:
+            x_tok = x_tok + self.align(frame_aligned(cond.content, frames))
         t_tok = self.time_mlp(self.time_pe[t.long().clamp(0, NUM_TIMESTEPS - 1)].to(x_t.dtype))[:, None] + seg[1]
         c_tok, s_tok = cond.content + seg[2], cond.style + seg[3]
         one = torch.ones(batch, 1, dtype=torch.bool, device=x_t.device)

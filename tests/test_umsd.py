@@ -81,8 +81,8 @@ def _padded_batch(seed: int = 0):
 
 @pytest.mark.parametrize(
     "variant",
-    [{}, {"use_ssm": False}, {"use_mha": False}, {"denoiser": "transformer"}],
-    ids=["msm", "no_ssm", "no_mha", "transformer"],
+    [{}, {"use_ssm": False}, {"use_mha": False}, {"denoiser": "transformer"}, {"align_content": True}],
+    ids=["msm", "no_ssm", "no_mha", "transformer", "aligned"],
 )
 def test_network_shapes_masks_and_batch_independence(variant: dict) -> None:
     torch.manual_seed(0)
@@ -118,6 +118,9 @@ def test_ablation_flags_change_the_network() -> None:
     assert not any("_ssm" in n for n in no_ssm) and not any("denoiser.attn." in n for n in no_mha)
     transformer = UmsdNet(UmsdConfig(d_model=32, n_heads=2, msm_blocks=2, denoiser="transformer"))
     assert len(transformer.denoiser.encoder.layers) == 3
+    aligned_net = UmsdNet(UmsdConfig(d_model=32, n_heads=2, ff_size=64, msm_blocks=2, d_state=4, align_content=True))
+    aligned = {n for n, _ in aligned_net.named_parameters()}
+    assert aligned - names == {"align.weight", "align.bias"} and not any(n.startswith("align.") for n in names)
     with pytest.raises(ValueError, match="denoiser"):
         UmsdConfig(denoiser="unet")
     with pytest.raises(MotionDataError, match="no real frame"):
@@ -214,6 +217,10 @@ def test_params() -> None:
         UmsdMethod.parse_params({"train": {"steps": 1, "wall_seconds": 3}})
     with pytest.raises(MotionDataError, match=r"config method\.params\.guidance"):
         UmsdMethod.parse_params({"guidance": 2.5})
+    # a field added later is left out of the dump at its default: older configs (and model keys) stay the same
+    assert "align_content" not in UmsdTrainConfig().model_dump()
+    aligned = UmsdTrainConfig(align_content=True)
+    assert UmsdTrainConfig.model_validate_json(aligned.model_dump_json()) == aligned and aligned.network().align_content
 
 
 def test_windows_cover_long_clips_and_blend_to_one() -> None:

@@ -42,7 +42,7 @@ from typing import Any, Literal
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_serializer, model_validator
 from safetensors.torch import load_file
 from torch import Tensor
 
@@ -111,6 +111,18 @@ class UmsdTrainConfig(BaseModel):
     denoiser: Literal["msm", "transformer"] = "msm"
     use_ssm: bool = True
     use_mha: bool = True
+    align_content: bool = Field(
+        False, description="add each content token to the noisy token of its frame too (models.umsd; not in the paper)"
+    )
+
+    @model_serializer(mode="wrap")
+    def _dump(self, handler: Any) -> dict[str, Any]:
+        """Omit ``align_content`` at its default, so the configs (and the keys of the models) made before the field
+        existed stay the same."""
+        data = handler(self)
+        if not self.align_content:
+            data.pop("align_content", None)
+        return data
 
     @model_validator(mode="after")
     def _check(self) -> UmsdTrainConfig:
@@ -137,6 +149,7 @@ class UmsdTrainConfig(BaseModel):
             denoiser=self.denoiser,
             use_ssm=self.use_ssm,
             use_mha=self.use_mha,
+            align_content=self.align_content,
         )
 
     def weights(self) -> dict[str, float]:
