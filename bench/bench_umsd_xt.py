@@ -20,8 +20,9 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_umsd_quality import load_clips, splits  # noqa: E402
 
-from motionaug.augment.diffusion import NoiseSchedule, q_sample, skip_x0  # noqa: E402
+from motionaug.augment.diffusion import NoiseSchedule, q_sample  # noqa: E402
 from motionaug.augment.methods.umsd import load_umsd  # noqa: E402
+from motionaug.augment.methods.umsd.training import x0_from_output  # noqa: E402
 
 
 def main() -> None:
@@ -44,7 +45,7 @@ def main() -> None:
 
     def predict(x_t: torch.Tensor, step: torch.Tensor) -> torch.Tensor:
         out = model.net(x_t, step, content, None, style, None)
-        return out if model.info.train.skip == "none" else skip_x0(schedule, x_t, step, out, *model.skip_prior)
+        return x0_from_output(model.info.train.skip, schedule, x_t, step, out, model.skip_prior, content)
 
     with torch.no_grad():
         for t in (10, 100, 500):

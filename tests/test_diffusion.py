@@ -362,3 +362,8 @@ def test_skip_x0_is_the_wiener_estimate_and_removes_off_data_noise() -> None:
         skip_x0(schedule, x_t, t, torch.ones_like(x_t)) - skip_x0(schedule, x_t, t, zero),
         (1 - ab).sqrt() * torch.ones_like(x_t),
     )
+    # a prior mean m: the estimate is m + the zero-mean estimate from x_t - sqrt(ab) m; at x_t = sqrt(ab) m it is m
+    m = torch.randn(B, T, D, generator=g, dtype=torch.float64)
+    centred = skip_x0(schedule, x_t, t, zero, basis, var, mean=m)
+    assert torch.allclose(centred, m + skip_x0(schedule, x_t - ab.sqrt() * m, t, zero, basis, var))
+    assert torch.allclose(skip_x0(schedule, ab.sqrt() * m, t, zero, basis, var, mean=m), m)

@@ -26,6 +26,7 @@ from motionaug.augment.methods.umsd import (
     train_umsd,
 )
 from motionaug.augment.methods.umsd.method import UmsdMethod, UmsdParams, blend_ramp, window_spans
+from motionaug.augment.methods.umsd.training import x0_from_output
 from motionaug.augment.synth import generate_corpus
 from motionaug.models.umsd import UmsdConfig, UmsdNet, pack
 from motionaug.schemas.errors import MotionDataError
@@ -184,6 +185,27 @@ def test_a_training_step_lowers_the_loss(clips: list[MotionClip]) -> None:
     trainer.train_step(batch)
     after = trainer.evaluate(batch)
     assert after["total"] < before["total"]
+
+
+@pytest.mark.parametrize("skip", ["covariance", "content"])
+def test_skips_lower_the_loss_and_the_content_skip_starts_from_the_content(clips: list[MotionClip], skip: str) -> None:
+    config = UmsdTrainConfig(**TINY, lr=2e-3, skip=skip)
+    torch.manual_seed(0)
+    trainer = UmsdTrainer(prepare_data(clips, config), config)
+    batch = trainer.sample()
+    before = trainer.evaluate(batch)
+    trainer.train_step(batch)
+    assert trainer.evaluate(batch)["total"] < before["total"]
+    # at pure noise a zero residual predicts the prior mean: the content frame by frame (zeros past its end)
+    x_t = torch.randn(batch.x0.shape)
+    t = torch.full((len(batch.kinds),), 999)
+    x0 = x0_from_output(skip, trainer.schedule, x_t, t, torch.zeros_like(x_t), trainer.skip_prior(), batch.content)
+    frames = min(batch.x0.shape[1], batch.content.shape[1])
+    if skip == "content":
+        torch.testing.assert_close(x0[:, :frames], batch.content[:, :frames], atol=0.05, rtol=0)
+        assert (x0[:, frames:].abs() < 0.05).all()
+    else:
+        assert x0.abs().max() < 0.05
 
 
 def test_training_is_deterministic_and_loads(clips: list[MotionClip], tmp_path: Path) -> None:

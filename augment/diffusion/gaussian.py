@@ -52,9 +52,11 @@ def skip_x0(
     residual: Tensor,
     basis: Tensor | None = None,
     var: Tensor | None = None,
+    mean: Tensor | None = None,
 ) -> Tensor:
     """x0_hat = E_lin[x0 | x_t] + sqrt(1 - alpha_bar_t) F: a network output F read as the residual to the best
-    linear (Wiener) estimate of x0 from x_t under a Gaussian data prior with covariance basis diag(var) basis^T.
+    linear (Wiener) estimate of x0 from x_t under a Gaussian data prior with covariance basis diag(var) basis^T
+    (and mean ``mean``, shaped like x_t; zero without it).
 
     Without ``basis``/``var`` the prior is unit variance and the estimate is sqrt(alpha_bar_t) x_t (the c_skip /
     c_out preconditioning of Karras et al. 2022 for a VP process, sigma_data = 1). With the data's covariance the
@@ -65,12 +67,15 @@ def skip_x0(
     = directions, var (D,).
     """
     ab = extract(schedule.alphas_cumprod, t, x_t)  # (B, 1, 1)
+    centred = x_t if mean is None else x_t - ab.sqrt() * mean
     if basis is None or var is None:
-        linear = ab.sqrt() * x_t
+        linear = ab.sqrt() * centred
     else:
         basis, var = basis.to(x_t.dtype), var.to(x_t.dtype)
         gain = ab.sqrt() * var / (ab * var + 1.0 - ab)  # (B, 1, D)
-        linear = ((x_t @ basis) * gain) @ basis.T
+        linear = ((centred @ basis) * gain) @ basis.T
+    if mean is not None:
+        linear = linear + mean
     return linear + (1.0 - ab).sqrt() * residual
 
 

@@ -27,7 +27,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from motionaug.augment.corpus import MotionClip, Reject
 from motionaug.augment.corpus.style_examples import MIN_EXAMPLE_FRAMES, check_motion
 from motionaug.augment.device import bf16_autocast
-from motionaug.augment.diffusion import NoiseSchedule, ddim_sample, skip_x0, start_step_for
+from motionaug.augment.diffusion import NoiseSchedule, ddim_sample, start_step_for
 from motionaug.augment.eval.inputs import pad_batch
 from motionaug.augment.io import atomic_write_text
 from motionaug.augment.methods.base import (
@@ -57,6 +57,7 @@ from motionaug.augment.methods.umsd.training import (
     UmsdTrainConfig,
     load_umsd,
     train_umsd,
+    x0_from_output,
 )
 from motionaug.augment.outputs.checksums import RUN_FACTS
 from motionaug.schemas.captions import Caption
@@ -316,9 +317,8 @@ class UmsdStyleModel:
 
             def model_fn(x_t: torch.Tensor, t: torch.Tensor, *, uncond: bool = False) -> torch.Tensor:
                 out = self.net.denoise(x_t, t, own if uncond else cond, content.mask).to(x_t.dtype)
-                if self.model.info.train.skip == "none":
-                    return out
-                return skip_x0(self.schedule, x_t, t, out, *self.model.skip_prior)
+                skip = self.model.info.train.skip
+                return x0_from_output(skip, self.schedule, x_t, t, out, self.model.skip_prior, content.x)
 
             return ddim_sample(
                 model_fn,

@@ -53,7 +53,7 @@ from motionaug.augment.io import read_json_model
 from motionaug.augment.methods.base import Progress
 from motionaug.augment.methods.common import run_steps, write_model_folder
 from motionaug.augment.motion.features import Normalizer, compute_mean_std, feature_slices, recover_from_ric
-from motionaug.models.umsd import UmsdConfig, UmsdNet
+from motionaug.models.umsd import UmsdConfig, UmsdNet, frame_aligned
 from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.skeleton import T2M
 
@@ -63,6 +63,7 @@ NEUTRAL = "neutral"
 TERMS = ("rec", "dcc", "dsc")
 SKIP_KEYS = ("skip.basis", "skip.var")  # the data prior of ``skip_x0``, saved beside the weights
 FOOT_JOINTS = (*T2M.feet_left, *T2M.feet_right)  # the order of the four foot-contact channels
+PRIOR_SKIPS = ("covariance", "content")  # the skips whose estimate uses the training frames' second moments
 
 
 class UmsdTrainConfig(BaseModel):
@@ -86,11 +87,11 @@ class UmsdTrainConfig(BaseModel):
     w_foot: float = Field(1.0, ge=0, description="Eq. 12: planted-foot speed, m/s")
     use_dcc: bool = Field(True, description="ablation switch for L_dcc (sec. 4.5)")
     use_dsc: bool = Field(True, description="ablation switch for L_dsc (sec. 4.5)")
-    skip: Literal["none", "covariance", "unit"] = Field(
+    skip: Literal["none", "covariance", "unit", "content"] = Field(
         "none",
         description="x0 = the linear estimate from x_t under a Gaussian prior with the training frames' second "
-        "moments (covariance) or unit variance (unit), + the network's residual (augment.diffusion.skip_x0); "
-        "none: the network's output is x0",
+        "moments (covariance), the same centred on the content condition frame by frame (content), or unit "
+        "variance (unit), + the network's residual (augment.diffusion.skip_x0); none: the network's output is x0",
     )
     exclude_styles: tuple[str, ...] = Field((), description="styles held out of training (zero-shot, sec. 4.4)")
     seed: int = 0
@@ -302,6 +303,23 @@ def prepare_data(clips: Sequence[MotionClip], config: UmsdTrainConfig | None = N
     )
 
 
+def x0_from_output(
+    skip: str,
+    schedule: NoiseSchedule,
+    x_t: Tensor,
+    t: Tensor,
+    out: Tensor,
+    prior: tuple[Tensor, Tensor] | tuple[None, None],
+    content: Tensor,
+) -> Tensor:
+    """The x0 prediction from the network's output under ``skip`` (``UmsdTrainConfig.skip``); ``content`` (B, Tc, F)
+    is the normalised content condition, zero at padding, frame i the prior mean of frame i for ``content``."""
+    if skip == "none":
+        return out
+    mean = frame_aligned(content, x_t.shape[1]) if skip == "content" else None
+    return skip_x0(schedule, x_t, t, out, *prior, mean=mean)
+
+
 # ---- the trainer ----------------------------------------------------------------------------------------------
 
 
@@ -395,8 +413,7 @@ class UmsdTrainer:
         x_t = q_sample(self.schedule, batch.x0 * mask[..., None], batch.t, batch.noise)
         keep = mask[..., None].float()
         pred = self.net(x_t, batch.t, batch.content, batch.content_mask, batch.style, batch.style_mask, mask)
-        if cfg.skip != "none":
-            pred = skip_x0(self.schedule, x_t, batch.t, pred, *self.skip_prior()) * keep
+        pred = x0_from_output(cfg.skip, self.schedule, x_t, batch.t, pred, self.skip_prior(), batch.content) * keep
         frames = keep.sum(dim=(1, 2)).clamp(min=1)
         l1 = ((pred - batch.x0).abs() * keep).sum(dim=(1, 2)) / (frames * pred.shape[-1])  # (B,)
         out: dict[str, Tensor] = {}
@@ -425,7 +442,7 @@ class UmsdTrainer:
         return out
 
     def skip_prior(self) -> tuple[Tensor, Tensor] | tuple[None, None]:
-        return (self.basis, self.var) if self.config.skip == "covariance" else (None, None)
+        return (self.basis, self.var) if self.config.skip in PRIOR_SKIPS else (None, None)
 
     def train_step(self, batch: UmsdBatch) -> dict[str, float]:
         self.net.train()
@@ -509,11 +526,11 @@ def load_umsd(path: str | os.PathLike[str]) -> UmsdModel:
         net = UmsdNet(UmsdConfig.from_dict(info.network))
         tensors = load_file(str(folder / WEIGHTS_FILE))
         prior = tuple(tensors.pop(k, None) for k in SKIP_KEYS)  # absent from folders trained before the skip
-        if info.train.skip == "covariance" and None in prior:
+        if info.train.skip in PRIOR_SKIPS and None in prior:
             raise ValueError("no skip.basis / skip.var beside the weights")
         net.load_state_dict(tensors, strict=True)
     except Exception as err:  # safetensors, shape or key mismatches: one line, naming the folder
         raise MotionDataError(str(folder), f"unreadable UMSD weights ({str(err).splitlines()[0]})") from None
     normalizer = Normalizer(np.asarray(info.normalizer["mean"]), np.asarray(info.normalizer["std"]))
-    skip_prior = prior if info.train.skip == "covariance" else (None, None)
+    skip_prior = prior if info.train.skip in PRIOR_SKIPS else (None, None)
     return UmsdModel(net.eval().requires_grad_(False), normalizer, info, skip_prior)
