@@ -23,7 +23,10 @@ to every row against the row's own target.
 
 The diffusion reconstruction terms use L1 (Eqs. 10-11); the network predicts x0 (sec. 3.4, Ramesh et al.), or
 with ``skip`` x0's residual to the linear estimate of x0 from x_t (``augment.diffusion.skip_x0``), which a network
-narrower than the features otherwise learns slowly enough to end up copying its clean conditions instead.
+narrower than the features otherwise learns slowly enough to end up copying its clean conditions instead. With
+``skip: content`` that estimate's prior is centred on the content condition frame by frame: at high noise the
+prediction starts from the content, so the network learns how the style displaces it rather than how to rebuild
+the content through its token mixers (not in the paper).
 ``train_umsd`` runs a fixed number of steps (never a wall-clock cap) and is bit-identical for the same clips,
 config, seed and thread count. Output folder (written to a temporary sibling, then renamed into place):
 ``umsd.safetensors`` (weights) and ``umsd.json`` (``UmsdTrainArtifact``: network config, normaliser, training
