@@ -27,7 +27,7 @@ from motionaug.augment.methods.umsd import (
 )
 from motionaug.augment.methods.umsd.method import UmsdMethod, UmsdParams, blend_ramp, window_spans
 from motionaug.augment.methods.umsd.training import x0_from_output
-from motionaug.augment.synth import generate_corpus
+from motionaug.augment.synth import generate_corpus, restyled
 from motionaug.models.umsd import UmsdConfig, UmsdNet, pack
 from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.styles import StyleSpec
@@ -170,6 +170,33 @@ def test_pairs_prefer_same_spec_renderings_and_other_content_style_mates() -> No
     assert set(only_rec.eligible) == {"rec"}
     with pytest.raises(MotionDataError, match="style label"):
         prepare_data([_clip("x", "", "walk")], UmsdTrainConfig(**TINY))
+
+
+def test_synthetic_pairs_render_each_motion_in_a_partner_style(clips: list[MotionClip]) -> None:
+    config = UmsdTrainConfig(**TINY, synthetic_pairs=True, exclude_styles=(HELD_OUT,))
+    data = prepare_data(clips, config)
+    kept = [c for c in clips if c.style != HELD_OUT]
+    assert data.rendered == len(kept) and len(data.ids) == 2 * len(kept)
+    assert HELD_OUT not in data.styles  # a held-out style is never rendered
+    by_id = dict(zip(data.ids, range(len(data.ids))))
+    for clip in kept:
+        twin = by_id[next(i for i in data.ids if i.startswith(f"{clip.id}@"))]
+        i = by_id[clip.id]
+        assert data.spec_keys[twin] == data.spec_keys[i] and data.same_motion[i] == [twin]
+        assert (data.styles[twin] == "neutral") == (clip.style != "neutral")
+        assert len(data.motions[twin]) == len(data.motions[i])  # the same duration, frame for frame
+    trainer = UmsdTrainer(data, config)
+    styled = next(i for i, s in enumerate(data.styles) if s != "neutral" and "@" not in data.ids[i])
+    x0, content, _ = trainer._row("rec", styled)
+
+    def starts(motion: np.ndarray, window: np.ndarray) -> list[int]:
+        return [k for k in range(len(motion) - len(window) + 1) if np.array_equal(motion[k : k + len(window)], window)]
+
+    twin_starts = starts(data.motions[data.same_motion[styled][0]], content)
+    assert set(starts(data.motions[styled], x0)) & set(twin_starts)  # rec's content: the twin at the target's frames
+    assert "synthetic_pairs" not in UmsdTrainConfig(**TINY).model_dump()  # model keys made before it stay
+    with pytest.raises(MotionDataError, match="clip x.*no synthetic motion spec"):
+        restyled(_clip("x", "proud", "walk"), "neutral")
 
 
 def test_a_training_step_lowers_the_loss(clips: list[MotionClip]) -> None:

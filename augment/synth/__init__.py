@@ -7,7 +7,7 @@ same content can be rendered in any style (paired ground truth for style transfe
 from motionaug.augment.synth.animator import ClipSpec, RenderedClip, render, sample_spec
 from motionaug.augment.synth.captions import make_captions
 from motionaug.augment.synth.contents import CONTENTS
-from motionaug.augment.synth.corpus import CorpusSummary, generate_corpus, read_labels
+from motionaug.augment.synth.corpus import CorpusSummary, generate_corpus, read_labels, restyled
 from motionaug.augment.synth.styles import STYLE_WORDS, STYLES, StyleWords, style_params
 
 __all__ = [
@@ -22,6 +22,7 @@ __all__ = [
     "make_captions",
     "read_labels",
     "render",
+    "restyled",
     "sample_spec",
     "style_params",
 ]

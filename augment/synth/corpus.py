@@ -112,6 +112,19 @@ def spec_to_clip(spec: ClipSpec, clip_id_: str) -> MotionClip:
     )
 
 
+def restyled(clip: MotionClip, style: str) -> MotionClip:
+    """The clip's synthetic motion (its ``meta['spec']``) rendered in ``style``: the same content, path, duration,
+    bones and phase frame for frame, so the pair is ground truth for a transfer. Id ``<id>@<style>``."""
+    raw = (clip.meta or {}).get("spec")
+    if not isinstance(raw, str) or not raw:
+        raise MotionDataError(f"clip {clip.id}", "no synthetic motion spec (meta 'spec') to render in another style")
+    try:
+        spec = ClipSpec.from_json(raw).with_style(style)
+    except (MotionDataError, ValueError) as err:
+        raise MotionDataError(f"clip {clip.id}", f"cannot render in style {style!r}: {err}".splitlines()[0]) from None
+    return spec_to_clip(spec, f"{clip.id}@{style}")
+
+
 def generate_corpus(
     out_dir: str | Path,
     n_clips: int,

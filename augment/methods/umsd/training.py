@@ -1,7 +1,8 @@
 """Train UMSD (Qian et al., ACM MM 2025, sec. 3.4) on labelled clips; save and load the network.
 
 Every step draws rows of three kinds from the labelled clips (style and content labels; clips of the synthetic
-corpus that are renderings of the same motion spec in different styles are paired frame for frame):
+corpus that are renderings of the same motion spec in different styles are paired frame for frame, and
+``synthetic_pairs`` renders such a partner for every synthetic clip, so ``rec`` learns from ground truth):
 
 - ``rec`` (ours, supervised transfer): target x0 = a clip of style s with content c; condition content = a clip of
   content c in another style (neutral when there is one: what a transfer is given); condition style = another
@@ -56,6 +57,7 @@ from motionaug.augment.io import read_json_model
 from motionaug.augment.methods.base import Progress
 from motionaug.augment.methods.common import run_steps, write_model_folder
 from motionaug.augment.motion.features import Normalizer, compute_mean_std, feature_slices, recover_from_ric
+from motionaug.augment.synth import restyled
 from motionaug.models.umsd import UmsdConfig, UmsdNet, frame_aligned
 from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.skeleton import T2M
@@ -67,6 +69,7 @@ TERMS = ("rec", "dcc", "dsc")
 SKIP_KEYS = ("skip.basis", "skip.var")  # the data prior of ``skip_x0``, saved beside the weights
 FOOT_JOINTS = (*T2M.feet_left, *T2M.feet_right)  # the order of the four foot-contact channels
 PRIOR_SKIPS = ("covariance", "content")  # the skips whose estimate uses the training frames' second moments
+LATER_FIELDS = {"align_content": False, "synthetic_pairs": False}  # left out of config dumps at these defaults
 
 
 class UmsdTrainConfig(BaseModel):
@@ -118,14 +121,20 @@ class UmsdTrainConfig(BaseModel):
     align_content: bool = Field(
         False, description="add each content token to the noisy token of its frame too (models.umsd; not in the paper)"
     )
+    synthetic_pairs: bool = Field(
+        False,
+        description="render every synthetic clip (meta 'spec') in a partner style, neutral for a styled clip and a "
+        "drawn trained style for a neutral one, so each motion has a frame-aligned pair (augment.synth.restyled)",
+    )
 
     @model_serializer(mode="wrap")
     def _dump(self, handler: Any) -> dict[str, Any]:
-        """Omit ``align_content`` at its default, so the configs (and the keys of the models) made before the field
-        existed stay the same."""
+        """Omit the fields added later at their defaults, so the configs (and the keys of the models) made before
+        they existed stay the same."""
         data = handler(self)
-        if not self.align_content:
-            data.pop("align_content", None)
+        for name, default in LATER_FIELDS.items():
+            if getattr(self, name) == default:
+                data.pop(name, None)
         return data
 
     @model_validator(mode="after")
@@ -214,6 +223,7 @@ class UmsdData:
     same_style: list[list[int]]  # same style, other content where possible: Eq. 10's pair, rec's style example
     eligible: dict[str, np.ndarray]  # per term, the clips that can be its row's anchor
     dropped: dict[str, int]
+    rendered: int = 0  # partners rendered from synthetic specs (``synthetic_pairs``)
 
     def second_moments(self) -> tuple[Tensor, Tensor]:
         """(basis (F, F), var (F,)): eigen-decomposition of E[x x^T] over every normalised training frame, the
@@ -235,6 +245,7 @@ class UmsdData:
             ),
             "eligible": {k: int(len(v)) for k, v in self.eligible.items()},
             "dropped": self.dropped,
+            **({"rendered": self.rendered} if self.rendered else {}),
         }
 
 
@@ -253,9 +264,27 @@ def _partners(styles: list[str], contents: list[str | None], keys: list[str | No
     return same_motion, same_style
 
 
+def rendered_partners(clips: Sequence[MotionClip], seed: int) -> list[MotionClip]:
+    """Each synthetic clip's motion rendered in a partner style: neutral for a styled clip, for a neutral one a style
+    drawn (by ``seed``) among the styles of ``clips``, so held-out styles are never rendered. Clips without a
+    spec get none. The pairs are what the synthetic corpus exists for: the same motion in two styles."""
+    styles = sorted({str(c.style) for c in clips} - {NEUTRAL})
+    rng = np.random.default_rng([seed, 2])
+    out = []
+    for clip in clips:
+        if spec_key(clip) is None:
+            continue
+        if clip.style != NEUTRAL:
+            out.append(restyled(clip, NEUTRAL))
+        elif styles:
+            out.append(restyled(clip, styles[int(rng.integers(0, len(styles)))]))
+    return out
+
+
 def prepare_data(clips: Sequence[MotionClip], config: UmsdTrainConfig | None = None) -> UmsdData:
-    """Check labels and motions, drop held-out styles and short clips, normalise with the kept clips' Mean/Std,
-    and find every clip's partners. Every clip needs a style label; content labels may be missing."""
+    """Check labels and motions, drop held-out styles and short clips, add the rendered partners when
+    ``synthetic_pairs``, normalise with the kept clips' Mean/Std, and find every clip's partners. Every clip needs a
+    style label; content labels may be missing."""
     config = config or UmsdTrainConfig()
     if not clips:
         raise MotionDataError("UMSD training", "no clips")
@@ -272,6 +301,8 @@ def prepare_data(clips: Sequence[MotionClip], config: UmsdTrainConfig | None = N
     dropped = {"held_out": len(clips) - len(kept), "short": len(kept) - len(long_enough)}
     if not long_enough:
         raise MotionDataError("UMSD training", f"no clip left with >= {config.min_frames} frames")
+    rendered = rendered_partners(long_enough, config.seed) if config.synthetic_pairs else []
+    long_enough = [*long_enough, *rendered]
     rates = {float(c.fps) for c in long_enough}
     if len(rates) != 1:
         raise MotionDataError("UMSD training", f"clips mix frame rates {sorted(rates)}")
@@ -303,6 +334,7 @@ def prepare_data(clips: Sequence[MotionClip], config: UmsdTrainConfig | None = N
         same_style=same_style,
         eligible=eligible,
         dropped=dropped,
+        rendered=len(rendered),
     )
 
 
