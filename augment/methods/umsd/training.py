@@ -69,7 +69,7 @@ TERMS = ("rec", "dcc", "dsc")
 SKIP_KEYS = ("skip.basis", "skip.var")  # the data prior of ``skip_x0``, saved beside the weights
 FOOT_JOINTS = (*T2M.feet_left, *T2M.feet_right)  # the order of the four foot-contact channels
 PRIOR_SKIPS = ("covariance", "content")  # the skips whose estimate uses the training frames' second moments
-LATER_FIELDS = {"align_content": False, "synthetic_pairs": False}  # left out of config dumps at these defaults
+LATER_FIELDS = ("align_content", "synthetic_pairs")  # left out of config dumps at their defaults
 
 
 class UmsdTrainConfig(BaseModel):
@@ -132,8 +132,8 @@ class UmsdTrainConfig(BaseModel):
         """Omit the fields added later at their defaults, so the configs (and the keys of the models) made before
         they existed stay the same."""
         data = handler(self)
-        for name, default in LATER_FIELDS.items():
-            if getattr(self, name) == default:
+        for name in LATER_FIELDS:
+            if getattr(self, name) == type(self).model_fields[name].default:
                 data.pop(name, None)
         return data
 
