@@ -180,13 +180,13 @@ def test_synthetic_pairs_render_each_motion_in_a_partner_style(clips: list[Motio
     assert HELD_OUT not in data.styles  # a held-out style is never rendered
     by_id = dict(zip(data.ids, range(len(data.ids))))
     for clip in kept:
-        twin = by_id[next(i for i in data.ids if i.startswith(f"{clip.id}@"))]
+        twin = by_id[next(i for i in data.ids if i.startswith(f"{clip.id}_"))]
         i = by_id[clip.id]
         assert data.spec_keys[twin] == data.spec_keys[i] and data.same_motion[i] == [twin]
         assert (data.styles[twin] == "neutral") == (clip.style != "neutral")
         assert len(data.motions[twin]) == len(data.motions[i])  # the same duration, frame for frame
     trainer = UmsdTrainer(data, config)
-    styled = next(i for i, s in enumerate(data.styles) if s != "neutral" and "@" not in data.ids[i])
+    styled = next(i for i, s in enumerate(data.styles) if s != "neutral" and "_" not in data.ids[i])
     x0, content, _ = trainer._row("rec", styled)
 
     def starts(motion: np.ndarray, window: np.ndarray) -> list[int]:

@@ -217,15 +217,11 @@ def _as_train(clip: MotionClip) -> MotionClip:
 
 
 def _rerendered(sources: Sequence[MotionClip], styles: Sequence[str]) -> Iterator[MotionClip]:
-    from motionaug.augment.synth import ClipSpec
-    from motionaug.augment.synth.corpus import spec_to_clip
+    from motionaug.augment.synth import restyled
 
     for clip in sources:
-        if "spec" not in clip.meta:
-            raise MotionDataError(f"clip {clip.id!r}", "no render spec in its labels: not a synthetic clip")
-        spec = ClipSpec.model_validate_json(clip.meta["spec"])
         for style in styles:
-            out = spec_to_clip(spec.with_style(style), f"{clip.id}_{style}")
+            out = restyled(clip, style)
             out.meta = {**out.meta, "split": "train", "source_id": clip.id}
             yield out
 

@@ -114,7 +114,7 @@ def spec_to_clip(spec: ClipSpec, clip_id_: str) -> MotionClip:
 
 def restyled(clip: MotionClip, style: str) -> MotionClip:
     """The clip's synthetic motion (its ``meta['spec']``) rendered in ``style``: the same content, path, duration,
-    bones and phase frame for frame, so the pair is ground truth for a transfer. Id ``<id>@<style>``."""
+    bones and phase frame for frame, so the pair is ground truth for a transfer. Id ``<id>_<style>``."""
     raw = (clip.meta or {}).get("spec")
     if not isinstance(raw, str) or not raw:
         raise MotionDataError(f"clip {clip.id}", "no synthetic motion spec (meta 'spec') to render in another style")
@@ -122,7 +122,7 @@ def restyled(clip: MotionClip, style: str) -> MotionClip:
         spec = ClipSpec.from_json(raw).with_style(style)
     except (MotionDataError, ValueError) as err:
         raise MotionDataError(f"clip {clip.id}", f"cannot render in style {style!r}: {err}".splitlines()[0]) from None
-    return spec_to_clip(spec, f"{clip.id}@{style}")
+    return spec_to_clip(spec, f"{clip.id}_{style}")
 
 
 def generate_corpus(
