@@ -214,6 +214,35 @@ def test_a_training_step_lowers_the_loss(clips: list[MotionClip]) -> None:
     assert after["total"] < before["total"]
 
 
+def test_the_spectrum_term_forgets_phase_and_charges_a_missing_rhythm(clips: list[MotionClip]) -> None:
+    config = UmsdTrainConfig(**TINY, lr=2e-3, w_spec=3.0)
+    assert "w_spec" not in UmsdTrainConfig(**TINY).model_dump()  # model keys made before it stay
+    torch.manual_seed(0)
+    trainer = UmsdTrainer(prepare_data(clips, config), config)
+    frames = 40
+    keep = torch.ones(2, frames, 1)
+    keep[1, 33:] = 0  # a padded row
+    swing = torch.zeros(2, frames, trainer.mean.numel())
+    phase = torch.arange(frames) * (2 * torch.pi * 4 / frames)  # four cycles: one frequency bin
+    channel = trainer.ric.start + 5
+    amplitude = 0.06  # metres
+    swing[:, :, channel] = amplitude * torch.sin(phase) / trainer.std[channel]
+    rest = (torch.zeros_like(swing) - trainer.mean) / trainer.std  # every channel still at zero metres
+    target, shifted = rest + swing, rest + swing.roll(3, dims=1)
+    spectrum = trainer._spectrum_l1
+    assert spectrum(target, target, keep[:1].expand(2, -1, -1)).item() < 1e-6
+    assert spectrum(shifted[:1], target[:1], keep[:1]).item() < 1e-4  # the same rhythm at another phase: free
+    channels = 1 + trainer.ric.stop - trainer.ric.start
+    missing = spectrum(rest[:1], target[:1], keep[:1]).item() * channels
+    assert missing == pytest.approx(amplitude / 2, rel=0.05)  # a sinusoid of amplitude A peaks at A / 2
+    assert spectrum(rest, target, keep).item() > 0  # the padded row too
+    batch = trainer.sample()
+    before = trainer.evaluate(batch)
+    assert before["spec"] > 0 and before["total"] > before["rec"] + before["dcc"] + before["dsc"]
+    trainer.train_step(batch)
+    assert trainer.evaluate(batch)["total"] < before["total"]
+
+
 @pytest.mark.parametrize("skip", ["covariance", "content"])
 def test_skips_lower_the_loss_and_the_content_skip_starts_from_the_content(clips: list[MotionClip], skip: str) -> None:
     config = UmsdTrainConfig(**TINY, lr=2e-3, skip=skip)

@@ -19,8 +19,10 @@ corpus that are renderings of the same motion spec in different styles are paire
 Eq. 12 adds L_pos, L_vel and L_foot (Shi et al. 2020; Tevet et al. 2022), computed here on *global joint
 positions* recovered from the predicted features (``recover_from_ric``: the root-relative positions block and
 the integrated root), in metres: L1 on positions, L1 on joint velocities (m/s), and the predicted ankle/toe
-speed (m/s) on the frames where the target's foot-contact channels say the foot is planted. Every term applies
-to every row against the row's own target.
+speed (m/s) on the frames where the target's foot-contact channels say the foot is planted. ``w_spec`` (not in
+the paper) adds an L1 between the amplitude spectra over time of the facing-frame joints: a style's rhythm (sway,
+bob, step-rate swings) costs its amplitude when missing whatever its phase, where the L1 on values is lowest for
+no rhythm at all when the phase is uncertain. Every term applies to every row against the row's own target.
 
 The diffusion reconstruction terms use L1 (Eqs. 10-11); the network predicts x0 (sec. 3.4, Ramesh et al.), or
 with ``skip`` x0's residual to the linear estimate of x0 from x_t (``augment.diffusion.skip_x0``), which a network
@@ -69,7 +71,7 @@ TERMS = ("rec", "dcc", "dsc")
 SKIP_KEYS = ("skip.basis", "skip.var")  # the data prior of ``skip_x0``, saved beside the weights
 FOOT_JOINTS = (*T2M.feet_left, *T2M.feet_right)  # the order of the four foot-contact channels
 PRIOR_SKIPS = ("covariance", "content")  # the skips whose estimate uses the training frames' second moments
-LATER_FIELDS = ("align_content", "synthetic_pairs")  # left out of config dumps at their defaults
+LATER_FIELDS = ("align_content", "synthetic_pairs", "w_spec")  # left out of config dumps at their defaults
 
 
 class UmsdTrainConfig(BaseModel):
@@ -91,6 +93,12 @@ class UmsdTrainConfig(BaseModel):
     w_pos: float = Field(1.0, ge=0, description="Eq. 12: joint positions, metres")
     w_vel: float = Field(1.0, ge=0, description="Eq. 12: joint velocities, m/s")
     w_foot: float = Field(1.0, ge=0, description="Eq. 12: planted-foot speed, m/s")
+    w_spec: float = Field(
+        0.0,
+        ge=0,
+        description="L1 on the temporal amplitude spectrum of the facing-frame joints and root height, metres "
+        "(not in the paper): rewards rhythm (sway, bob, step-rate swings) whatever its phase",
+    )
     use_dcc: bool = Field(True, description="ablation switch for L_dcc (sec. 4.5)")
     use_dsc: bool = Field(True, description="ablation switch for L_dsc (sec. 4.5)")
     skip: Literal["none", "covariance", "unit", "content"] = Field(
@@ -387,7 +395,8 @@ class UmsdTrainer:
         self.neutral = [[j for j in js if data.styles[j] == NEUTRAL] for js in data.same_motion]
         self.mean = torch.from_numpy(data.normalizer.mean)
         self.std = torch.from_numpy(data.normalizer.std)
-        self.feet = feature_slices(T2M)["feet"]
+        blocks = feature_slices(T2M)
+        self.feet, self.ric, self.root_y = blocks["feet"], blocks["ric"], blocks["root_y"]
         self.basis, self.var = data.second_moments()
 
     # -- sampling --
@@ -473,8 +482,27 @@ class UmsdTrainer:
         speed = pv[:, :, list(FOOT_JOINTS)].norm(dim=-1)  # (B, T-1, 4)
         out["foot"] = (speed * planted).sum() / planted.sum().clamp(min=1)
         total = total + cfg.w_pos * out["pos"] + cfg.w_vel * out["vel"] + cfg.w_foot * out["foot"]
+        if cfg.w_spec > 0:
+            out["spec"] = self._spectrum_l1(pred, batch.x0, keep)
+            total = total + cfg.w_spec * out["spec"]
         out["total"] = total
         return out
+
+    def _spectrum_l1(self, pred: Tensor, target: Tensor, keep: Tensor) -> Tensor:
+        """L1 between the amplitude spectra over time of the root-relative, facing-frame joints (the ``ric`` block)
+        and the root height, each channel's mean over the real frames removed, amplitudes per frame (a sinusoid of
+        amplitude A peaks at A / 2), summed over frequencies, averaged over channels and rows. An L1 on values alone
+        is lowest, where the phase of a swing is uncertain, for no swing at all; the amplitude spectrum forgets the
+        phase, so an output without the style's rhythm costs what a wrong rhythm does."""
+        dims = [self.root_y.start, *range(self.ric.start, self.ric.stop)]
+        frames = keep.sum(dim=1, keepdim=True).clamp(min=1)  # (B, 1, 1)
+
+        def amplitudes(x: Tensor) -> Tensor:
+            metres = (x[..., dims] * self.std[dims] + self.mean[dims]) * keep
+            centred = (metres - metres.sum(dim=1, keepdim=True) / frames) * keep
+            return torch.fft.rfft(centred, dim=1).abs() / frames
+
+        return (amplitudes(pred) - amplitudes(target)).abs().sum(dim=1).mean()
 
     def skip_prior(self) -> tuple[Tensor, Tensor] | tuple[None, None]:
         return (self.basis, self.var) if self.config.skip in PRIOR_SKIPS else (None, None)
