@@ -21,8 +21,11 @@ style, as in configs/bandai2-onthefly.yaml), then ``transfer`` of every neutral 
 JSON merged into the method params, e.g. DDIM steps, ``keep``, ``transfer_noise_step``, ``window``).
 (c) Scores with bench_bandai2's code: CRA / SRA (top-1 of the content / style evaluator against the source's
 content / the target style, Wilson 95% intervals), FMD of content-evaluator features against the real ``--split``
-clips of the style drawn to the same count (beside the real train-vs-held-out floor), foot skating.
-Writes ``WORK/<tag>-<split>.json`` and prints a Markdown table. The machine's load average is recorded.
+clips of the style drawn to the same count (beside the real train-vs-held-out floor), foot skating; on synthetic
+clips also each output's mean pose against its source rendered in every style (``posture_nearest``: whose render
+is nearest; the true transfer is the target style's render). Writes ``WORK/<tag>-<split>.json`` (figures),
+``WORK/<tag>-<split>-outputs.npz`` (each output's features, key ``<style>/<source id>``) and prints a Markdown
+table. The machine's load average is recorded.
 """
 
 from __future__ import annotations
@@ -51,9 +54,14 @@ from motionaug.augment.eval.evaluation import classify, load_classifiers  # noqa
 from motionaug.augment.methods.base import TransferOutput  # noqa: E402
 from motionaug.augment.methods.umsd import UmsdTrainConfig, read_artifact, train_umsd  # noqa: E402
 from motionaug.augment.methods.umsd.method import UmsdMethod  # noqa: E402
+from motionaug.augment.motion.features import feature_slices  # noqa: E402
+from motionaug.augment.synth import restyled  # noqa: E402
 from motionaug.augment.training.data import split_ids  # noqa: E402
 from motionaug.schemas.errors import MotionDataError  # noqa: E402
+from motionaug.schemas.skeleton import T2M  # noqa: E402
 from motionaug.schemas.styles import StyleSpec  # noqa: E402
+
+RIC = feature_slices(T2M)["ric"]
 
 # Training presets (``UmsdTrainConfig`` fields). ``bandai``: the CPU preset chosen for a <= 45 min run on a shared
 # 2-core machine (see bench/RESULTS.md section 13 for its profile); ``tiny``: a seconds-long smoke.
@@ -197,6 +205,7 @@ def score(
             "fmd_samples": n_fmd,
             "foot_skating": skating(joints),
             "foot_skating_real": skating(real),
+            **true_postures(style, outs, sources, judges.style_labels),
         }
     mean = {k: float(np.mean([r[k] for r in rows.values()])) for k in ("cra", "sra", "fmd", "foot_skating")}
     mean["sra_min"] = float(min(r["sra"] for r in rows.values()))
@@ -204,6 +213,30 @@ def score(
     n = sum(r["clips"] for r in rows.values())
     mean |= {"cra_95": wilson(hits["cra"], n), "sra_95": wilson(hits["sra"], n), "clips": n}
     return {"styles": rows, "mean": mean}
+
+
+def mean_pose(motion: np.ndarray) -> np.ndarray:
+    """The clip's pose averaged over its frames: root-relative, facing-frame joints (the ``ric`` block), metres."""
+    return np.asarray(motion, dtype=np.float64)[:, RIC].mean(axis=0)
+
+
+def true_postures(
+    style: str, outs: list[TransferOutput], sources: dict[str, MotionClip], styles: list[str]
+) -> dict[str, Any]:
+    """Synthetic sources only: each output's mean pose against its source rendered in every judged style (the
+    ground truth of every transfer of that clip). ``posture_nearest``: whose render is nearest; ``posture_error_m``:
+    the mean joint distance to the target style's render. Empty for clips without a synthetic spec."""
+    if not outs or any("spec" not in (sources[o.source_id].meta or {}) for o in outs):
+        return {}
+    nearest: dict[str, int] = defaultdict(int)
+    errors = []
+    for o in outs:
+        pose = mean_pose(o.motion).reshape(-1, 3)
+        truth = {s: mean_pose(restyled(sources[o.source_id], s).motion).reshape(-1, 3) for s in styles}
+        dist = {s: float(np.linalg.norm(pose - t, axis=1).mean()) for s, t in truth.items()}
+        nearest[min(dist, key=dist.__getitem__)] += 1
+        errors.append(dist[style])
+    return {"posture_nearest": dict(sorted(nearest.items())), "posture_error_m": float(np.mean(errors))}
 
 
 def table(result: dict[str, Any]) -> str:
@@ -295,6 +328,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         **score(args, outputs, held, train_by_style, {c.id: c for c in sources}),
     }
     (args.work / f"{result['tag']}-{args.split}.json").write_text(json.dumps(result, indent=1) + "\n")
+    np.savez_compressed(
+        args.work / f"{result['tag']}-{args.split}-outputs.npz",
+        **{f"{style}/{o.source_id}": o.motion for style, outs in outputs.items() for o in outs},
+    )
     print(table(result))
     return result
 
