@@ -358,6 +358,16 @@ def test_zero_shot_transfer_of_a_held_out_style(corpus: Path, tmp_path: Path) ->
     alone = model.transfer([content[1]], seed=3)[0]
     np.testing.assert_allclose(alone.motion, outputs[2].motion, atol=1e-4)
     assert not np.allclose(model.transfer([content[1]], seed=4)[0].motion, alone.motion)
+    # style guidance changes the output, and limiting it to the last step (t < 1) changes it again
+    unguided = alone.motion
+    guided = {}
+    for below in (1000, 1):
+        model.params = model.params.model_copy(
+            update={"guidance": "style", "guidance_scale": 3.0, "guidance_below": below}
+        )
+        guided[below] = model.transfer([content[1]], seed=3)[0].motion
+    assert np.abs(guided[1000] - unguided).mean() > 1e-3 and np.abs(guided[1] - unguided).mean() > 1e-3
+    assert np.abs(guided[1] - guided[1000]).mean() > 1e-3
     # style guidance: stronger than the plain transfer, and a no-op when the example is the content itself
     guided = UmsdMethod({**params, "guidance": "style", "guidance_scale": 2.0})
     stronger = guided.load(artifact, trained).transfer([content[1]], seed=3)[0]

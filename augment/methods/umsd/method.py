@@ -87,6 +87,13 @@ class UmsdParams(BaseModel):
         "for no style (Eq. 10's rows teach that it gives the content back); none: x0(c, s)",
     )
     guidance_scale: float = Field(1.0, ge=0.0, description="w of style guidance (1: none; > 1: more of the style)")
+    guidance_below: int = Field(
+        NUM_TIMESTEPS,
+        ge=1,
+        le=NUM_TIMESTEPS,
+        description="style guidance only at timesteps below this, unguided above (guidance limited to an interval, "
+        "Kynkaanniemi et al. 2024): the gross motion forms unguided; 1000: guidance at every step",
+    )
     keep: Literal["horizontal", "root", "none"] = Field(
         "horizontal", description="content channels kept by inpainting: root xz + yaw velocities (+ height: root)"
     )
@@ -316,6 +323,7 @@ class UmsdStyleModel:
             own = self.net.condition(content.x, content.mask, content.x, content.mask) if guided else cond
 
             def model_fn(x_t: torch.Tensor, t: torch.Tensor, *, uncond: bool = False) -> torch.Tensor:
+                uncond = uncond and int(t[0]) < p.guidance_below  # above the interval x0_u = x0_c: no guidance
                 out = self.net.denoise(x_t, t, own if uncond else cond, content.mask).to(x_t.dtype)
                 skip = self.model.info.train.skip
                 return x0_from_output(skip, self.schedule, x_t, t, out, self.model.skip_prior, content.x)
