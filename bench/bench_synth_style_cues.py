@@ -75,6 +75,7 @@ def variants(style: StyleParams) -> dict[str, StyleParams]:
     for group in GROUPS:
         out[f"{group} only"] = only(style, group)
         out[f"without {group}"] = without(style, group)
+    out["posture x0.5"] = scaled(style, "posture", 0.5)
     out["rhythm x0.5"] = scaled(style, "rhythm", 0.5)
     out["posture x2, rhythm x0.5"] = scaled(scaled(style, "posture", 2.0), "rhythm", 0.5)
     return out
