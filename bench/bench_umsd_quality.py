@@ -172,6 +172,7 @@ def score(
     """bench_bandai2.score's figures, on in-memory outputs."""
     judges = load_classifiers(args.base)
     rows: dict[str, Any] = {}
+    truths: dict[str, dict[str, np.ndarray]] = {}  # source id -> style -> mean pose of its true render
     for style, outs in sorted(outputs.items()):
         joints = [joints_of(o.motion) for o in outs]
         content_probs, content_feats = classify(judges.content, joints)
@@ -205,7 +206,7 @@ def score(
             "fmd_samples": n_fmd,
             "foot_skating": skating(joints),
             "foot_skating_real": skating(real),
-            **true_postures(style, outs, sources, judges.style_labels),
+            **true_postures(style, outs, sources, judges.style_labels, truths),
         }
     mean = {k: float(np.mean([r[k] for r in rows.values()])) for k in ("cra", "sra", "fmd", "foot_skating")}
     mean["sra_min"] = float(min(r["sra"] for r in rows.values()))
@@ -221,18 +222,26 @@ def mean_pose(motion: np.ndarray) -> np.ndarray:
 
 
 def true_postures(
-    style: str, outs: list[TransferOutput], sources: dict[str, MotionClip], styles: list[str]
+    style: str,
+    outs: list[TransferOutput],
+    sources: dict[str, MotionClip],
+    styles: list[str],
+    truths: dict[str, dict[str, np.ndarray]],
 ) -> dict[str, Any]:
     """Synthetic sources only: each output's mean pose against its source rendered in every judged style (the
     ground truth of every transfer of that clip). ``posture_nearest``: whose render is nearest; ``posture_error_m``:
-    the mean joint distance to the target style's render. Empty for clips without a synthetic spec."""
+    the mean joint distance to the target style's render. Empty for clips without a synthetic spec. ``truths``
+    caches the renders' poses across the target styles."""
     if not outs or any("spec" not in (sources[o.source_id].meta or {}) for o in outs):
         return {}
     nearest: dict[str, int] = defaultdict(int)
     errors = []
     for o in outs:
         pose = mean_pose(o.motion).reshape(-1, 3)
-        truth = {s: mean_pose(restyled(sources[o.source_id], s).motion).reshape(-1, 3) for s in styles}
+        source = sources[o.source_id]
+        if source.id not in truths:
+            truths[source.id] = {s: mean_pose(restyled(source, s).motion).reshape(-1, 3) for s in styles}
+        truth = truths[source.id]
         dist = {s: float(np.linalg.norm(pose - t, axis=1).mean()) for s, t in truth.items()}
         nearest[min(dist, key=dist.__getitem__)] += 1
         errors.append(dist[style])
