@@ -51,7 +51,7 @@ from bench_pretrain import parse_sets
 
 from motionaug.augment.corpus import Corpus, MotionClip  # noqa: E402
 from motionaug.augment.eval.evaluation import classify, load_classifiers  # noqa: E402
-from motionaug.augment.methods.base import TransferOutput  # noqa: E402
+from motionaug.augment.methods.base import ARTIFACT_JSON, TransferOutput  # noqa: E402
 from motionaug.augment.methods.umsd import UmsdTrainConfig, read_artifact, train_umsd  # noqa: E402
 from motionaug.augment.methods.umsd.method import UmsdMethod  # noqa: E402
 from motionaug.augment.motion.features import feature_slices  # noqa: E402
@@ -142,7 +142,7 @@ def transfer(
     params |= json.loads(args.params) if args.params else {}
     method = UmsdMethod(params)
     out: dict[str, list[TransferOutput]] = {}
-    facts: dict[str, Any] = {"params": params, "prepare_s": {}, "transfer_s": {}}
+    facts: dict[str, Any] = {"params": params, "prepare_s": {}, "references": {}, "transfer_s": {}}
     for style in styles:
         example = examples[style]
         spec = StyleSpec(
@@ -151,8 +151,10 @@ def transfer(
             examples=[{"source": example.id, "description": f"a person moves in a {style} way"}],
         )
         start = time.perf_counter()
-        artifact = method.prepare(spec, [example], model_dir, [], args.work / "styles" / f"{style}-{model_dir.name}")
+        folder = args.work / "styles" / f"{style}-{model_dir.name}"
+        artifact = method.prepare(spec, [example], model_dir, sources, folder)  # sources: the content pool
         facts["prepare_s"][style] = time.perf_counter() - start
+        facts["references"][style] = json.loads((artifact / ARTIFACT_JSON).read_text(encoding="utf-8"))["references"]
         model = method.load(artifact, model_dir)
         start = time.perf_counter()
         results = model.transfer(sources, seed=0)

@@ -22,6 +22,7 @@ from motionaug.augment.diffusion import (
     ddpm_step,
     guided_x0,
     masked_mse,
+    off_own_motion,
     q_posterior_mean_variance,
     q_sample,
     skip_x0,
@@ -293,6 +294,31 @@ def test_contrast_guidance_extrapolates_from_the_reference() -> None:
     assert torch.allclose(contrast_guided(tuned, base, 2.0)(x, t), expected, atol=1e-12)
     unconditional = contrast_guided(tuned, base, 2.0)(x, t, uncond=True)  # both sides lose their condition
     assert torch.allclose(unconditional, tuned(x, t, uncond=True), atol=1e-12)
+
+
+def test_guidance_off_the_own_motion_keeps_posture_and_new_motion_but_not_gesture_scaling() -> None:
+    """A direction that shrinks the reference's gestures loses that part; a posture shift and a new swing stay."""
+    frames_n = 64
+    time = torch.arange(frames_n, dtype=torch.float64)[None, :, None].expand(B, frames_n, D) / frames_n
+    gesture = torch.sin(2 * math.pi * 2 * time)  # the reference's own motion
+    reference = 3.0 + gesture  # an offset is posture, not motion
+    swing = torch.cos(2 * math.pi * 5 * time)  # a motion the reference lacks (orthogonal to its gesture)
+    direction = -0.5 * gesture + 0.7 + 0.2 * swing
+    kept = off_own_motion(direction, reference)
+    assert torch.allclose(kept, 0.7 + 0.2 * swing, atol=1e-9)  # the shrinking is gone, posture + swing kept
+    assert torch.allclose(off_own_motion(kept, reference), kept, atol=1e-9)  # a projection: idempotent
+    # padded frames neither count nor change; a still reference (no own motion) leaves the direction whole
+    half = frames_n // 2
+    frames = torch.ones(B, frames_n, dtype=torch.bool)
+    frames[:, half:] = False
+    padded = reference.clone()
+    padded[:, half:] = 1e6
+    masked = off_own_motion(direction, padded, frames)
+    assert torch.equal(masked[:, half:], direction[:, half:])
+    own = padded[:, :half] - padded[:, :half].mean(dim=1, keepdim=True)
+    assert torch.allclose((masked[:, :half] * own).sum(dim=1), torch.zeros(B, D, dtype=torch.float64), atol=1e-9)
+    still = torch.full_like(reference, 2.0)
+    assert torch.equal(off_own_motion(direction, still), direction)
 
 
 # ---------------------------------------------------------------- loss and differentiable path

@@ -23,9 +23,9 @@ from motionaug.augment.motion.features import (
     recover_root_rot_pos,
 )
 from motionaug.augment.motion.kinematics import (
-    _gaussian_smooth_time,
     forward_kinematics,
     forward_kinematics_cont6d,
+    gaussian_smooth_time,
     inverse_kinematics,
     t2m_target_offsets,
     target_offsets,
@@ -132,7 +132,7 @@ def test_forward_smoothing_matches_scipy() -> None:
     from scipy import ndimage
 
     x = np.random.default_rng(0).normal(size=(50, 3))  # shorter than the 80-frame radius: edges repeat
-    ours = _gaussian_smooth_time(torch.as_tensor(x), 20.0, time_dim=0).numpy()
+    ours = gaussian_smooth_time(torch.as_tensor(x), 20.0, time_dim=0).numpy()
     np.testing.assert_allclose(ours, ndimage.gaussian_filter1d(x, 20, axis=0, mode="nearest"), atol=1e-12)
 
 

@@ -25,7 +25,14 @@ from motionaug.augment.methods.umsd import (
     read_artifact,
     train_umsd,
 )
-from motionaug.augment.methods.umsd.method import UmsdMethod, UmsdParams, blend_ramp, window_spans
+from motionaug.augment.methods.umsd.method import (
+    UmsdMethod,
+    UmsdParams,
+    blend_ramp,
+    nearest_root_motion,
+    smoothed,
+    window_spans,
+)
 from motionaug.augment.methods.umsd.training import x0_from_output
 from motionaug.augment.synth import generate_corpus, restyled
 from motionaug.models.umsd import UmsdConfig, UmsdNet, pack
@@ -315,9 +322,43 @@ def test_windows_cover_long_clips_and_blend_to_one() -> None:
     assert total.min() >= 1  # every frame is covered by a full-weight part of some window
 
 
+def test_the_contrast_reference_is_the_pool_clip_whose_root_moves_like_the_example() -> None:
+    rng = np.random.default_rng(0)
+
+    def clip(speed: float, bob: float, contact: float) -> np.ndarray:
+        motion = rng.normal(0, 0.01, (60, 263)).astype(np.float32)
+        motion[:, 0:3] = [0.0, speed, 0.0]  # no turning (root_rot_vel), ground speed (root_lin_vel)
+        motion[:, 3] = 0.95 + bob * np.sin(np.linspace(0, 12, 60))  # root_y
+        motion[:, 259:] = float(contact)
+        return motion
+
+    pool = {"b_walk": clip(0.05, 0.02, 0.6), "a_stand": clip(0.0, 0.0, 1.0), "c_jump": clip(0.0, 0.15, 0.3)}
+    assert nearest_root_motion(clip(0.03, 0.015, 0.7), pool)[0] == "b_walk"  # a slower walk: still the walk
+    assert nearest_root_motion(clip(0.0, 0.12, 0.4), pool)[0] == "c_jump"
+    np.testing.assert_array_equal(nearest_root_motion(clip(0.0, 0.0, 1.0), pool)[1], pool["a_stand"])
+    assert nearest_root_motion(pool["b_walk"], {"z": pool["b_walk"], "y": pool["b_walk"]})[0] == "y"  # ties: id
+
+
+def test_smoothing_removes_frame_jitter_but_not_the_motion_or_the_contacts() -> None:
+    frames = np.arange(120)
+    motion = np.zeros((120, 263), np.float32)
+    motion[:, 3:259] = np.sin(2 * np.pi * frames / 80)[:, None]  # a 0.25 Hz gesture at 20 fps
+    jitter = np.where(frames % 2 == 0, 0.05, -0.05)[:, None]  # frame-to-frame alternation
+    motion[:, 259:] = (frames % 10 < 5)[:, None]  # contacts: 0/1 labels
+    noisy = motion.copy()
+    noisy[:, :259] += jitter
+    assert smoothed(noisy, 0.0) is noisy
+    out = smoothed(noisy, 1.5)
+    np.testing.assert_array_equal(out[:, 259:], motion[:, 259:])
+    inner = slice(10, -10)  # away from the clip's edges
+    assert np.abs(out[inner, :259] - motion[inner, :259]).max() < 0.01  # jitter gone, the gesture kept
+    assert np.abs(noisy[inner, :259] - motion[inner, :259]).max() > 0.04
+
+
 def test_zero_shot_transfer_of_a_held_out_style(corpus: Path, tmp_path: Path) -> None:
     params = copy.deepcopy(UmsdMethod.smoke_params)
     params["train"] = {**params["train"], "exclude_styles": [HELD_OUT]}
+    params.update(guidance="none", guidance_scale=1.0)  # each guidance is checked against the plain transfer
     method = UmsdMethod(params)
     spec = TrainingSpec(size="tiny", options={}, seed=0)
     trained = method.train(corpus, tmp_path / "trained", spec)
@@ -368,6 +409,15 @@ def test_zero_shot_transfer_of_a_held_out_style(corpus: Path, tmp_path: Path) ->
         guided[below] = model.transfer([content[1]], seed=3)[0].motion
     assert np.abs(guided[1000] - unguided).mean() > 1e-3 and np.abs(guided[1] - unguided).mean() > 1e-3
     assert np.abs(guided[1] - guided[1000]).mean() > 1e-3
+    # guidance off the content's own motion differs from plain style guidance; at w 1 it is no guidance
+    off = {}
+    for scale in (3.0, 1.0):
+        model.params = model.params.model_copy(
+            update={"guidance": "style-off-content", "guidance_scale": scale, "guidance_below": 1000}
+        )
+        off[scale] = model.transfer([content[1]], seed=3)[0].motion
+    assert np.isfinite(off[3.0]).all() and np.abs(off[3.0] - guided[1000]).mean() > 1e-3
+    np.testing.assert_allclose(off[1.0], unguided, atol=1e-4)
     # style guidance: stronger than the plain transfer, and a no-op when the example is the content itself
     guided = UmsdMethod({**params, "guidance": "style", "guidance_scale": 2.0})
     stronger = guided.load(artifact, trained).transfer([content[1]], seed=3)[0]
@@ -376,6 +426,20 @@ def test_zero_shot_transfer_of_a_held_out_style(corpus: Path, tmp_path: Path) ->
     itself = guided.prepare(style, [short], trained, [], tmp_path / "itself")
     plain = method.load(itself, trained).transfer([short], seed=3)[0].motion
     np.testing.assert_allclose(guided.load(itself, trained).transfer([short], seed=3)[0].motion, plain, atol=1e-4)
+    # style-contrast guidance: the reference is picked from the pool; the example as its own reference is no guidance
+    contrast = UmsdMethod({**params, "guidance": "style-contrast", "guidance_scale": 2.0})
+    with pytest.raises(MotionDataError, match="style-contrast guidance needs usable content clips"):
+        contrast.prepare(style, [example], trained, [broken], tmp_path / "no-pool")
+    with pytest.raises(MotionDataError, match="prepared without references"):
+        contrast.load(artifact, trained)
+    pooled = contrast.prepare(style, [example], trained, [broken, *content], tmp_path / "pooled")
+    assert json.loads((pooled / ARTIFACT_JSON).read_text(encoding="utf-8"))["references"][0] in {c.id for c in content}
+    contrasted = contrast.load(pooled, trained).transfer([content[1]], seed=3)[0].motion
+    assert np.isfinite(contrasted).all() and np.abs(contrasted - alone.motion).mean() > 1e-3
+    selfref = contrast.prepare(style, [example], trained, [example], tmp_path / "selfref")
+    np.testing.assert_allclose(
+        contrast.load(selfref, trained).transfer([content[1]], seed=3)[0].motion, alone.motion, atol=1e-4
+    )
 
     (trained / "umsd.json").write_text((trained / "umsd.json").read_text() + " ", encoding="utf-8")
     with pytest.raises(MotionDataError, match="prepared for UMSD network"):

@@ -24,6 +24,7 @@ from motionaug.augment.diffusion.samplers import (
     ddpm_sample,
     ddpm_step,
     guided_x0,
+    off_own_motion,
 )
 from motionaug.augment.diffusion.schedule import NoiseSchedule, cosine_betas, space_timesteps, start_step_for
 
@@ -42,6 +43,7 @@ __all__ = [
     "ddpm_sample",
     "ddpm_step",
     "guided_x0",
+    "off_own_motion",
     "masked_mse",
     "p_mean_variance",
     "predict_eps_from_x0",

@@ -99,6 +99,21 @@ def contrast_guided(primary: DenoiseFn, reference: DenoiseFn, scale: float) -> D
     return model_fn
 
 
+def off_own_motion(direction: Tensor, reference: Tensor, frames: Tensor | None = None) -> Tensor:
+    """``direction`` less, channel by channel, its least-squares part along ``reference``'s own motion.
+
+    ``reference``'s motion is each channel minus its mean over the real ``frames`` (B, T bool). Guidance along what
+    is left changes posture (the means) and adds motion the reference lacks, but cannot scale the reference's own
+    gestures up or down. (B, T, D); padded frames of the result are ``direction``'s.
+    """
+    weight = torch.ones_like(reference[..., :1]) if frames is None else frames[..., None].to(reference.dtype)
+    count = weight.sum(dim=1, keepdim=True).clamp_min(1.0)
+    own = (reference - (reference * weight).sum(dim=1, keepdim=True) / count) * weight
+    power = (own * own).sum(dim=1, keepdim=True)
+    along = (direction * own).sum(dim=1, keepdim=True) / power.clamp_min(1e-8)
+    return direction - torch.where(power > 1e-8, along, torch.zeros_like(along)) * own
+
+
 def guided_x0(model_fn: DenoiseFn, x_t: Tensor, t: Tensor, guidance_scale: float | None) -> Tensor:
     """x0 prediction, with classifier-free guidance x0_u + s (x0_c - x0_u) when a scale is given (MDM cfg_sampler)."""
     x0_cond = model_fn(x_t, t)

@@ -124,7 +124,7 @@ def forward_kinematics_cont6d(
     return _walk_chains(skeleton, mats[..., 0, :, :], lambda j: mats[..., j, :, :], offs, root_pos, torch.matmul, apply)
 
 
-def _gaussian_smooth_time(x: Tensor, sigma: float, time_dim: int) -> Tensor:
+def gaussian_smooth_time(x: Tensor, sigma: float, time_dim: int) -> Tensor:
     """``scipy.ndimage.gaussian_filter1d(x, sigma, mode='nearest', truncate=4)`` along ``time_dim``."""
     radius = int(4.0 * sigma + 0.5)
     taps = torch.arange(-radius, radius + 1, dtype=x.dtype, device=x.device)
@@ -162,7 +162,7 @@ def _ik_forward(skeleton: Skeleton, joints: Tensor, smooth: bool) -> Tensor:
     # the opposite of process_file's; reproduced because the dataset's features depend on it.
     forward = _facing(joints, (r_hip, l_hip), (l_sdr, r_sdr))
     if smooth:
-        forward = _gaussian_smooth_time(forward, FORWARD_SMOOTH_SIGMA, time_dim=-2)
+        forward = gaussian_smooth_time(forward, FORWARD_SMOOTH_SIGMA, time_dim=-2)
     return forward
 
 

@@ -27,7 +27,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from motionaug.augment.corpus import MotionClip, Reject
 from motionaug.augment.corpus.style_examples import MIN_EXAMPLE_FRAMES, check_motion
 from motionaug.augment.device import bf16_autocast
-from motionaug.augment.diffusion import NoiseSchedule, ddim_sample, start_step_for
+from motionaug.augment.diffusion import NoiseSchedule, ddim_sample, off_own_motion, start_step_for
 from motionaug.augment.eval.inputs import pad_batch
 from motionaug.augment.io import atomic_write_text
 from motionaug.augment.methods.base import (
@@ -41,6 +41,7 @@ from motionaug.augment.methods.common import (
     MotionBatch,
     clip_noise,
     configure_threads,
+    feet_channels,
     files_fingerprint,
     read_artifact_json,
     read_tensors,
@@ -59,9 +60,12 @@ from motionaug.augment.methods.umsd.training import (
     train_umsd,
     x0_from_output,
 )
+from motionaug.augment.motion.features import feature_slices
+from motionaug.augment.motion.kinematics import gaussian_smooth_time
 from motionaug.augment.outputs.checksums import RUN_FACTS
 from motionaug.schemas.captions import Caption
 from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.skeleton import T2M
 from motionaug.schemas.styles import StyleSpec
 
 METHOD_NAME = "umsd"
@@ -81,10 +85,15 @@ class UmsdParams(BaseModel):
         le=NUM_TIMESTEPS,
         description="1000: sample from pure noise (the paper); K < 1000: start from the content noised to step K",
     )
-    guidance: Literal["none", "style"] = Field(
+    guidance: Literal["none", "style", "style-off-content", "style-contrast"] = Field(
         "none",
         description="style: x0(c, c) + w (x0(c, s) - x0(c, c)), the content as its own style example standing in "
-        "for no style (Eq. 10's rows teach that it gives the content back); none: x0(c, s)",
+        "for no style (Eq. 10's rows teach that it gives the content back); style-off-content: x0(c, s) + (w - 1) "
+        "times that direction less its part along the content's own motion, channel by channel (posture and new "
+        "motion are extrapolated, the content's gestures are not shrunk or grown); style-contrast: x0(c, r) + "
+        "w (x0(c, s) - x0(c, r)), r the pool clip whose root motion is nearest the example's (its content performed "
+        "plainly), so what the example's content carries (a walk's steps) cancels and only its style is "
+        "extrapolated; none: x0(c, s)",
     )
     guidance_scale: float = Field(1.0, ge=0.0, description="w of style guidance (1: none; > 1: more of the style)")
     guidance_below: int = Field(
@@ -96,6 +105,16 @@ class UmsdParams(BaseModel):
     )
     keep: Literal["horizontal", "root", "none"] = Field(
         "horizontal", description="content channels kept by inpainting: root xz + yaw velocities (+ height: root)"
+    )
+    reference_pool: int = Field(
+        64, ge=1, description="content clips the plan hands ``prepare`` to pick style-contrast references from"
+    )
+    smooth_frames: float = Field(
+        0.0,
+        ge=0.0,
+        description="sigma (frames) of a Gaussian over time applied to the output's generated channels but the "
+        "foot contacts: removes the frame-to-frame jitter the sampler leaves, which the eye and a content "
+        "classifier read as extra motion (0: none)",
     )
     window: int | None = Field(
         None,
@@ -121,6 +140,7 @@ class UmsdArtifact(BaseModel):
     style: StyleSpec
     examples: list[str]
     example_frames: list[int]  # as stored (the middle ``train.max_frames`` of a longer example)
+    references: list[str] = []  # per example, the pool clip standing in for its content without the style
     trained_fingerprint: str
     weights_bytes: int
 
@@ -150,7 +170,14 @@ class UmsdMethod(LabelledNetworkMethod):
         },
         "ddim_steps": 4,
         "batch_size": 4,
+        "guidance": "style-contrast",  # the plan's pool reaches ``prepare`` and the references the sampler
+        "guidance_scale": 2.0,
     }
+
+    @property
+    def content_pool(self) -> int:  # type: ignore[override]
+        """Content clips ``prepare`` sees: style-contrast guidance picks its references from them."""
+        return self.params.reference_pool if self.params.guidance == "style-contrast" else 0
 
     # ---- once per run: the network ----------------------------------------------------------------------
 
@@ -183,21 +210,28 @@ class UmsdMethod(LabelledNetworkMethod):
         if not examples:
             raise MotionDataError(f"style {style.name!r}", "no example clips")
         model = load_umsd(trained)
-        weights = {}
+        weights: dict[str, torch.Tensor] = {}
+        motions: list[np.ndarray] = []
         for i, example in enumerate(examples):
-            motion = check_motion(example.motion, f"style {style.name!r} example {example.id}", model.normalizer.dim)
-            motion = self._checked_length(motion, model, f"style {style.name!r} example {example.id}")
-            if example.fps != model.info.fps:
-                raise MotionDataError(f"style {style.name!r} example {example.id}", self._fps_reason(example, model))
-            longest = model.info.train.max_frames
-            if motion.shape[0] > longest:
-                first = (motion.shape[0] - longest) // 2
-                motion = motion[first : first + longest]
-            weights[f"example.{i}"] = torch.from_numpy(model.normalizer.normalize(motion).astype(np.float32))
+            motion = self._checked_clip(example, model, f"style {style.name!r} example {example.id}")
+            motions.append(motion)
+            weights[f"example.{i}"] = self._stored(motion, model)
+        references: list[str] = []
+        if self.params.guidance == "style-contrast":
+            candidates = self._reference_candidates(content, model)
+            if not candidates:
+                raise MotionDataError(
+                    f"style {style.name!r}", "style-contrast guidance needs usable content clips to pick from"
+                )
+            for i, motion in enumerate(motions):
+                reference_id, reference = nearest_root_motion(motion, candidates)
+                references.append(reference_id)
+                weights[f"reference.{i}"] = self._stored(reference, model)
         info = UmsdArtifact(
             style=style,
             examples=[e.id for e in examples],
-            example_frames=[int(w.shape[0]) for w in weights.values()],
+            example_frames=[int(weights[f"example.{i}"].shape[0]) for i in range(len(examples))],
+            references=references,
             trained_fingerprint=trained_fingerprint(Path(trained)),
             weights_bytes=tensor_bytes(weights),
         )
@@ -205,6 +239,32 @@ class UmsdMethod(LabelledNetworkMethod):
         seconds = {"prepare_s": time.perf_counter() - start}
         atomic_write_text(Path(out) / RUN_FACTS, json.dumps(seconds) + "\n")  # outside the artefact's checksum
         return Path(out)
+
+    def _checked_clip(self, clip: MotionClip, model: UmsdModel, source: str) -> np.ndarray:
+        """A clip's raw features, checked for the network (width, finite, length, fps)."""
+        motion = self._checked_length(check_motion(clip.motion, source, model.normalizer.dim), model, source)
+        if clip.fps != model.info.fps:
+            raise MotionDataError(source, self._fps_reason(clip, model))
+        return motion
+
+    @staticmethod
+    def _stored(motion: np.ndarray, model: UmsdModel) -> torch.Tensor:
+        """Normalised, cut to the middle ``train.max_frames`` frames (style inputs were never longer in training)."""
+        longest = model.info.train.max_frames
+        if motion.shape[0] > longest:
+            first = (motion.shape[0] - longest) // 2
+            motion = motion[first : first + longest]
+        return torch.from_numpy(model.normalizer.normalize(motion).astype(np.float32))
+
+    def _reference_candidates(self, pool: Sequence[MotionClip], model: UmsdModel) -> dict[str, np.ndarray]:
+        """The pool's usable clips by id (an unusable one is rejected again, and reported, by ``transfer``)."""
+        found = {}
+        for clip in pool:
+            try:
+                found[clip.id] = self._checked_clip(clip, model, f"clip {clip.id}")
+            except MotionDataError:
+                continue
+        return found
 
     def _checked_length(self, motion: np.ndarray, model: UmsdModel, source: str) -> np.ndarray:
         if motion.shape[0] < self.params.min_frames:
@@ -229,7 +289,43 @@ class UmsdMethod(LabelledNetworkMethod):
             )
         tensors = read_tensors(Path(artifact) / ARTIFACT_WEIGHTS)
         examples = [tensors[f"example.{i}"] for i in range(len(info.examples))]
-        return UmsdStyleModel(info.style, load_umsd(trained), examples, self.params)
+        references = []
+        if self.params.guidance == "style-contrast":
+            if len(info.references) != len(examples):
+                raise MotionDataError(str(artifact), "prepared without references; style-contrast guidance needs them")
+            references = [tensors[f"reference.{i}"] for i in range(len(examples))]
+        return UmsdStyleModel(info.style, load_umsd(trained), examples, self.params, references)
+
+
+def smoothed(motion: np.ndarray, sigma: float) -> np.ndarray:
+    """``motion`` with every channel but the foot contacts (labels, not signals) Gaussian-filtered over time."""
+    if sigma <= 0:
+        return motion
+    feet = set(feet_channels())
+    signal = [c for c in range(motion.shape[1]) if c not in feet]
+    out = motion.copy()
+    out[:, signal] = gaussian_smooth_time(torch.from_numpy(motion[:, signal]), sigma, time_dim=0).numpy()
+    return out
+
+
+def root_motion(motion: np.ndarray) -> np.ndarray:
+    """What a clip's root does, a summary that style changes little: mean ground speed and turning rate (per
+    frame), the spread of the root height and the share of frames with a foot on the ground."""
+    slices = feature_slices(T2M)
+    speed = np.linalg.norm(motion[:, slices["root_lin_vel"]], axis=1).mean()
+    turning = np.abs(motion[:, slices["root_rot_vel"]]).mean()
+    return np.array([speed, turning, motion[:, slices["root_y"]].std(), motion[:, slices["feet"]].mean()])
+
+
+def nearest_root_motion(example: np.ndarray, candidates: dict[str, np.ndarray]) -> tuple[str, np.ndarray]:
+    """The candidate whose ``root_motion`` is nearest the example's, each summary entry scaled by its spread over
+    the candidates (ties: the smallest id). A stand-in for the example's content performed without its style."""
+    ids = sorted(candidates)
+    summaries = np.stack([root_motion(candidates[i]) for i in ids])
+    scale = summaries.std(axis=0) + 1e-6
+    distance = np.linalg.norm((summaries - root_motion(example)) / scale, axis=1)
+    best = ids[int(np.argmin(distance))]
+    return best, candidates[best]
 
 
 def window_spans(frames: int, window: int, params: UmsdParams) -> list[tuple[int, int]]:
@@ -267,7 +363,14 @@ class _Job:
 class UmsdStyleModel:
     """The trained network and one style's examples; stylizes batches of whole clips (``StyleModel``)."""
 
-    def __init__(self, style: StyleSpec, model: UmsdModel, examples: Sequence[torch.Tensor], params: UmsdParams):
+    def __init__(
+        self,
+        style: StyleSpec,
+        model: UmsdModel,
+        examples: Sequence[torch.Tensor],
+        params: UmsdParams,
+        references: Sequence[torch.Tensor] = (),
+    ):
         if not examples:
             raise MotionDataError(f"style {style.name!r}", "no example motions")
         self.spec = style
@@ -275,6 +378,7 @@ class UmsdStyleModel:
         self.model = model
         self.net = model.net.eval().requires_grad_(False)
         self.examples = [e.float() for e in examples]
+        self.references = [r.float() for r in references]  # style-contrast guidance: one per example
         self.params = params
         self.vocab = style_vocab(style.words, style.name)
         self.kept = [] if params.keep == "none" else trajectory_channels(params.keep)
@@ -291,9 +395,9 @@ class UmsdStyleModel:
         captions = revised_texts(clip, self.spec.words, self.params.caption_variants, clip_seed, self.vocab)
         return _Job(index, clip, motion, captions)
 
-    def example_for(self, clip_id: str) -> torch.Tensor:
-        """The style example a clip is conditioned on: one per clip, chosen by its id (batch-independent)."""
-        return self.examples[zlib.crc32(clip_id.encode("utf-8")) % len(self.examples)]
+    def example_index(self, clip_id: str) -> int:
+        """Which style example a clip is conditioned on: one per clip, chosen by its id (batch-independent)."""
+        return zlib.crc32(clip_id.encode("utf-8")) % len(self.examples)
 
     def transfer(self, clips: Sequence[MotionClip], seed: int = 0) -> list[TransferOutput | Reject]:
         """Stylize a batch; a clip that cannot be used (NaN, wrong width, too short or long) is a ``Reject``."""
@@ -312,21 +416,38 @@ class UmsdStyleModel:
         return [r for r in results if r is not None]
 
     @torch.no_grad()
-    def sample(self, content: MotionBatch, style: torch.Tensor, style_mask: torch.Tensor, noise: torch.Tensor):
+    def sample(
+        self,
+        content: MotionBatch,
+        style: torch.Tensor,
+        style_mask: torch.Tensor,
+        noise: torch.Tensor,
+        reference: tuple[torch.Tensor, torch.Tensor] | None = None,
+    ):
         """DDIM from pure noise (or from the content noised to ``transfer_noise_step``) with the condition
-        U(content, style) computed once; the kept channels are inpainted from the content. Normalised (B, T, F)."""
+        U(content, style) computed once; the kept channels are inpainted from the content. Normalised (B, T, F).
+        ``reference`` (motions, mask): the guidance's stand-in for no style (default: the content itself)."""
         p = self.params
         partial = p.transfer_noise_step < NUM_TIMESTEPS
-        guided = p.guidance == "style" and p.guidance_scale != 1.0
+        guided = p.guidance != "none" and p.guidance_scale != 1.0
+        off_content = guided and p.guidance == "style-off-content"
+        plain = (content.x, content.mask) if reference is None else reference
         with bf16_autocast(p.bf16):
             cond = self.net.condition(content.x, content.mask, style, style_mask)
-            own = self.net.condition(content.x, content.mask, content.x, content.mask) if guided else cond
+            own = self.net.condition(content.x, content.mask, *plain) if guided else cond
+
+            def x0_of(x_t: torch.Tensor, t: torch.Tensor, condition: torch.Tensor) -> torch.Tensor:
+                out = self.net.denoise(x_t, t, condition, content.mask).to(x_t.dtype)
+                skip = self.model.info.train.skip
+                return x0_from_output(skip, self.schedule, x_t, t, out, self.model.skip_prior, content.x)
 
             def model_fn(x_t: torch.Tensor, t: torch.Tensor, *, uncond: bool = False) -> torch.Tensor:
                 uncond = uncond and int(t[0]) < p.guidance_below  # above the interval x0_u = x0_c: no guidance
-                out = self.net.denoise(x_t, t, own if uncond else cond, content.mask).to(x_t.dtype)
-                skip = self.model.info.train.skip
-                return x0_from_output(skip, self.schedule, x_t, t, out, self.model.skip_prior, content.x)
+                x0_c = x0_of(x_t, t, own if uncond else cond)
+                if not off_content or int(t[0]) >= p.guidance_below:
+                    return x0_c
+                direction = off_own_motion(x0_c - x0_of(x_t, t, own), content.x, content.mask)
+                return x0_c + (p.guidance_scale - 1.0) * direction
 
             return ddim_sample(
                 model_fn,
@@ -337,7 +458,7 @@ class UmsdStyleModel:
                 x_start=content.x if partial else None,
                 noise=noise,
                 inpaint=content.inpaint(self.kept) if self.kept else None,
-                guidance_scale=p.guidance_scale if guided else None,
+                guidance_scale=p.guidance_scale if guided and not off_content else None,
             ).float()
 
     def window_size(self) -> int:
@@ -364,9 +485,11 @@ class UmsdStyleModel:
         for start in range(0, len(pieces), size):
             chunk = pieces[start : start + size]
             content = MotionBatch.from_motions([motions[j][a:b] for j, a, b in chunk], None)
-            style, style_mask = pad_batch([self.example_for(jobs[j].clip.id) for j, _, _ in chunk])
+            picks = [self.example_index(jobs[j].clip.id) for j, _, _ in chunk]
+            style, style_mask = pad_batch([self.examples[i] for i in picks])
+            reference = pad_batch([self.references[i] for i in picks]) if self.references else None
             noise, _ = pad_batch([noises[j][a:b] for j, a, b in chunk])
-            out = self.sample(content, style, style_mask, noise).numpy()
+            out = self.sample(content, style, style_mask, noise, reference).numpy()
             for row, (j, a, b) in enumerate(chunk):
                 ramp = blend_ramp(a, b, motions[j].shape[0], self.params.window_overlap)
                 sums[j][a:b] += out[row, : b - a] * ramp
@@ -378,7 +501,7 @@ class UmsdStyleModel:
         outputs = self._sample_windows(jobs, seed)
         results: list[TransferOutput | Reject] = []
         for i, job in enumerate(jobs):
-            motion = norm.denormalize(outputs[i]).astype(np.float32)
+            motion = smoothed(norm.denormalize(outputs[i]).astype(np.float32), self.params.smooth_frames)
             motion[:, self.kept] = job.motion[:, self.kept]  # exactly the content's, not up to rounding
             if not np.isfinite(motion).all():
                 results.append(Reject(id=job.clip.id, source=f"clip {job.clip.id}", reason="non-finite UMSD output"))
