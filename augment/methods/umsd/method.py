@@ -113,7 +113,7 @@ class UmsdParams(BaseModel):
         0.0,
         ge=0.0,
         description="sigma (frames) of a Gaussian over time applied to the output's generated channels but the "
-        "foot contacts: removes the frame-to-frame jitter the sampler leaves, which the eye and a content "
+        "foot contacts: removes the frame-to-frame jitter of the network's outputs, which the eye and a content "
         "classifier read as extra motion (0: none)",
     )
     window: int | None = Field(
