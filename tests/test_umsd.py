@@ -37,6 +37,7 @@ from motionaug.augment.methods.umsd.training import x0_from_output
 from motionaug.augment.synth import generate_corpus, restyled
 from motionaug.models.umsd import UmsdConfig, UmsdNet, pack
 from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.skeleton import T2M
 from motionaug.schemas.styles import StyleSpec
 
 TINY = {
@@ -246,6 +247,35 @@ def test_the_spectrum_term_forgets_phase_and_charges_a_missing_rhythm(clips: lis
     batch = trainer.sample()
     before = trainer.evaluate(batch)
     assert before["spec"] > 0 and before["total"] > before["rec"] + before["dcc"] + before["dsc"]
+    trainer.train_step(batch)
+    assert trainer.evaluate(batch)["total"] < before["total"]
+
+
+def test_the_acceleration_term_charges_frame_to_frame_shake_not_a_smooth_offset(clips: list[MotionClip]) -> None:
+    config = UmsdTrainConfig(**TINY, lr=2e-3, w_acc=0.1)
+    assert "w_acc" not in UmsdTrainConfig(**TINY).model_dump()  # model keys made before it stay
+    torch.manual_seed(0)
+    trainer = UmsdTrainer(prepare_data(clips, config), config)
+    fps, frames, shake = trainer.data.fps, 30, 0.01  # metres
+    mask = torch.ones(2, frames, dtype=torch.bool)
+    mask[1, 20:] = False  # a padded row
+    target = torch.randn(2, frames, T2M.n_joints, 3).cumsum(dim=1) * 0.01
+    sign = (-1.0) ** torch.arange(frames)
+    shaken = target + shake * sign[None, :, None, None]
+    offset = target + torch.linspace(0, 0.2, frames)[None, :, None, None]  # a steady drift: no acceleration
+
+    def velocity(x: torch.Tensor) -> torch.Tensor:
+        return (x[:, 1:] - x[:, :-1]) * fps
+
+    term = trainer._acceleration_l1
+    assert term(velocity(offset), velocity(target), mask).item() < 1e-4
+    assert term(velocity(shaken), velocity(target), mask).item() == pytest.approx(4 * shake * fps**2, rel=1e-4)
+    padded = shaken.clone()
+    padded[1, 20:] += 5.0  # whatever the padding holds costs nothing
+    assert term(velocity(padded), velocity(target), mask).item() == pytest.approx(4 * shake * fps**2, rel=1e-4)
+    batch = trainer.sample()
+    before = trainer.evaluate(batch)
+    assert before["acc"] > 0
     trainer.train_step(batch)
     assert trainer.evaluate(batch)["total"] < before["total"]
 
