@@ -180,11 +180,17 @@ class RayBackend:
         self.remote = ray.remote(ray_unit)
         self.retries = retries
         self.shared: dict[int, tuple[Stage, Any]] = {}
+        self.waits_on: dict[Any, Any] = {}  # task -> the task result (object reference) it takes as input
 
     def submit(self, stage: Stage, key: Hashable, dependency: Any) -> Any:
+        import ray
+
         res = stage.resources()
         options = {"name": stage.task_name(key), "num_cpus": res.cpus, "num_gpus": res.gpus}
-        return self.remote.options(max_retries=self.retries, **options).remote(self._put(stage), key, dependency)
+        handle = self.remote.options(max_retries=self.retries, **options).remote(self._put(stage), key, dependency)
+        if isinstance(dependency, ray.ObjectRef):
+            self.waits_on[handle] = dependency
+        return handle
 
     def _put(self, stage: Stage) -> Any:
         """The stage in the object store once, every task a reference to it: a stage carries the plan (1 MB at
@@ -204,14 +210,33 @@ class RayBackend:
 
     def abandon(self, handles: Sequence[Any], grace_s: float = 20.0) -> None:
         """Cancel the run's other tasks and give them ``grace_s`` to end before the driver goes: a task that fails
-        after its driver has gone makes Ray log an error on the driver's stderr, beside the run's one line."""
+        after its driver has gone makes Ray log an error on the driver's stderr, beside the run's one line.
+
+        A finished task (the one that failed) is left alone, and so is a task whose input is another task's result
+        that is not there yet or failed: it ends by itself once that input fails or is cancelled, and cancelling it
+        races Ray's own completion of it (Ray 2.60's core worker then aborts the driver: "Tried to complete task
+        that was not pending")."""
         import ray
 
         if not handles:
             return
-        for handle in handles:
-            ray.cancel(handle)
+        _, unfinished = ray.wait(list(handles), num_returns=len(handles), timeout=0)
+        for handle in unfinished:
+            dependency = self.waits_on.get(handle)
+            if dependency is None or _succeeded(dependency):
+                ray.cancel(handle)
         ray.wait(list(handles), num_returns=len(handles), timeout=grace_s)
+
+
+def _succeeded(ref: Any) -> bool:
+    """Whether the task behind ``ref`` has finished without an error (a marker record: small to fetch)."""
+    import ray
+
+    try:
+        ray.get(ref, timeout=0)
+    except Exception:
+        return False
+    return True
 
 
 def _get(ref: Any) -> Any:
