@@ -67,7 +67,8 @@ def main() -> None:
 
     def predict(x_t: torch.Tensor, step: torch.Tensor) -> torch.Tensor:
         out = model.net(x_t, step, content, None, style, None)
-        return x0_from_output(model.info.train.skip, schedule, x_t, step, out, model.skip_prior, content)
+        skip, prior = model.info.train.skip, model.skip_prior
+        return x0_from_output(skip, schedule, x_t, step, out, prior, content, model.spectral)
 
     with torch.no_grad():
         for t in (int(v) for v in args.steps.split(",")):

@@ -13,13 +13,16 @@ from motionaug.augment.diffusion import (
     InpaintSpec,
     NoiseSchedule,
     SamplerStep,
+    SpectralPrior,
     contrast_guided,
     cosine_betas,
+    dct_matrix,
     ddim_path,
     ddim_sample,
     ddim_step,
     ddpm_sample,
     ddpm_step,
+    estimate_spectral_prior,
     guided_x0,
     masked_mse,
     off_own_motion,
@@ -393,3 +396,43 @@ def test_skip_x0_is_the_wiener_estimate_and_removes_off_data_noise() -> None:
     centred = skip_x0(schedule, x_t, t, zero, basis, var, mean=m)
     assert torch.allclose(centred, m + skip_x0(schedule, x_t - ab.sqrt() * m, t, zero, basis, var))
     assert torch.allclose(skip_x0(schedule, ab.sqrt() * m, t, zero, basis, var, mean=m), m)
+
+
+def _smooth_motions(n: int, frames: int, dims: int, g: torch.Generator) -> Tensor:
+    """Random motions with little power at high temporal frequencies: white noise summed over 8 frames."""
+    white = torch.randn(n, frames + 7, dims, generator=g, dtype=torch.float64)
+    return white.unfold(1, 8, 1).mean(dim=-1)  # (n, frames, dims)
+
+
+def test_the_spectral_skip_removes_the_frequencies_motion_lacks() -> None:
+    """The DCT is orthonormal; with one prior for every band the spectral skip is the frame-by-frame one; a band
+    without variance is removed from x_t; padding keeps the frame-by-frame estimate; on smooth motions (noised) the
+    spectral estimate beats the frame-by-frame one, both from the same data."""
+    schedule = NoiseSchedule.cosine()
+    g = torch.Generator().manual_seed(0)
+    dct = dct_matrix(13, torch.float64)
+    assert torch.allclose(dct @ dct.T, torch.eye(13, dtype=torch.float64), atol=1e-12)
+    basis = torch.linalg.qr(torch.randn(D, D, generator=g, dtype=torch.float64))[0]
+    var = torch.tensor([0.1, 0.5, 1.0, 2.0, 4.0], dtype=torch.float64)
+    x_t = torch.randn(3, 11, D, generator=g, dtype=torch.float64)
+    t, zero = torch.tensor([10, 500, 900]), torch.zeros_like(x_t)
+    mask = torch.ones(3, 11, dtype=torch.bool)
+    mask[1, 7:] = False
+    alike = SpectralPrior(basis.expand(8, D, D).clone(), var.expand(8, D).clone())
+    frame = skip_x0(schedule, x_t, t, zero, basis, var)
+    assert torch.allclose(skip_x0(schedule, x_t, t, zero, basis, var, spectral=alike, mask=mask), frame, atol=1e-12)
+    quiet = SpectralPrior(alike.bases, torch.cat([var.expand(4, D), torch.zeros(4, D, dtype=torch.float64)]))
+    out = skip_x0(schedule, x_t, t, zero, basis, var, spectral=quiet, mask=mask)
+    coeffs = dct_matrix(11, torch.float64) @ out[0]
+    assert coeffs[6:].abs().max() < 1e-12 and coeffs[:5].abs().min() > 0  # bands 4-7: frequencies 6-10 of 11
+    assert torch.allclose(out[1, 7:], frame[1, 7:])  # padding: the frame-by-frame estimate
+    motions = _smooth_motions(400, 48, D, g)
+    prior = estimate_spectral_prior(list(motions.numpy()), bands=16)
+    frames = motions.reshape(-1, D)
+    var_f, basis_f = torch.linalg.eigh(frames.T @ frames / len(frames))
+    held = _smooth_motions(200, 40, D, g)
+    steps = torch.full((200,), 100)
+    noisy = q_sample(schedule, held, steps, torch.randn(held.shape, generator=g, dtype=torch.float64))
+    spectral = SpectralPrior(prior.bases.double(), prior.variances.double())
+    error = lambda **kw: skip_x0(schedule, noisy, steps, torch.zeros_like(noisy), basis_f, var_f, **kw) - held  # noqa: E731
+    assert error(spectral=spectral).square().mean() < 0.7 * error().square().mean()

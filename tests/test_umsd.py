@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from pydantic import ValidationError
 
 from motionaug.augment.corpus import Corpus, MotionClip, Reject
 from motionaug.augment.methods.base import ARTIFACT_JSON, TrainingSpec, TransferOutput
@@ -299,6 +300,23 @@ def test_skips_lower_the_loss_and_the_content_skip_starts_from_the_content(clips
         assert (x0[:, frames:].abs() < 0.05).all()
     else:
         assert x0.abs().max() < 0.05
+
+
+def test_the_spectral_skip_trains_and_its_prior_goes_with_the_weights(clips: list[MotionClip], tmp_path: Path) -> None:
+    with pytest.raises(ValidationError, match="skip_time 'spectral' needs a skip"):
+        UmsdTrainConfig(skip="none", skip_time="spectral")
+    assert "skip_time" not in UmsdTrainConfig().model_dump()  # the keys of models trained before it stay the same
+    config = UmsdTrainConfig(**TINY, lr=2e-3, skip="content", skip_time="spectral")
+    torch.manual_seed(0)
+    trainer = UmsdTrainer(prepare_data(clips, config), config)
+    assert trainer.spectral is not None and trainer.spectral.bases.shape == (32, 263, 263)
+    batch = trainer.sample()
+    before = trainer.evaluate(batch)
+    trainer.train_step(batch)
+    assert trainer.evaluate(batch)["total"] < before["total"]
+    model = load_umsd(train_umsd(clips, tmp_path / "s", config.model_copy(update={"steps": 1})))
+    assert model.spectral is not None
+    torch.testing.assert_close(model.spectral.variances, trainer.spectral.variances)
 
 
 def test_training_is_deterministic_and_loads(clips: list[MotionClip], tmp_path: Path) -> None:

@@ -6,9 +6,11 @@ which equals the training timestep for an unspaced schedule. Samples are (B, T, 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -53,6 +55,8 @@ def skip_x0(
     basis: Tensor | None = None,
     var: Tensor | None = None,
     mean: Tensor | None = None,
+    spectral: SpectralPrior | None = None,
+    mask: Tensor | None = None,
 ) -> Tensor:
     """x0_hat = E_lin[x0 | x_t] + sqrt(1 - alpha_bar_t) F: a network output F read as the residual to the best
     linear (Wiener) estimate of x0 from x_t under a Gaussian data prior with covariance basis diag(var) basis^T
@@ -65,6 +69,10 @@ def skip_x0(
     and the residual left to F lies in the data's few principal directions. Why a skip at all: identity at small t
     need not be learnt through a network narrower than the features. x_t (B, T, D), t (B,), basis (D, D) columns
     = directions, var (D,).
+
+    ``spectral`` replaces that frame-by-frame prior inside each row's real frames (``mask`` (B, T); all frames
+    without it) by a stationary one over time (``SpectralPrior``): noise at frequencies real motion lacks (the
+    frame-to-frame shake) is then removed by the skip too, not passed on for the network to cancel.
     """
     ab = extract(schedule.alphas_cumprod, t, x_t)  # (B, 1, 1)
     centred = x_t if mean is None else x_t - ab.sqrt() * mean
@@ -74,9 +82,81 @@ def skip_x0(
         basis, var = basis.to(x_t.dtype), var.to(x_t.dtype)
         gain = ab.sqrt() * var / (ab * var + 1.0 - ab)  # (B, 1, D)
         linear = ((centred @ basis) * gain) @ basis.T
+        if spectral is not None:
+            linear = spectral.estimate(centred, ab, mask, linear)
     if mean is not None:
         linear = linear + mean
     return linear + (1.0 - ab).sqrt() * residual
+
+
+def dct_matrix(n: int, dtype: torch.dtype = torch.float32) -> Tensor:
+    """The orthonormal DCT-II over ``n`` frames, (n, n), row k the frequency k / (2 n) cycles per frame. Orthonormal:
+    white noise keeps its variance in every coefficient; a cosine basis: a clip's two ends are not joined (no
+    wrap-around edge, unlike the FFT)."""
+    k = torch.arange(n, dtype=torch.float64)[:, None]
+    frames = torch.arange(n, dtype=torch.float64)[None, :]
+    c = torch.cos(torch.pi * (frames + 0.5) * k / n) * (2.0 / n) ** 0.5
+    c[0] /= 2.0**0.5
+    return c.to(dtype)
+
+
+@dataclass(frozen=True)
+class SpectralPrior:
+    """A stationary Gaussian prior over time for (T, D) motions: the DCT-II coefficients at each temporal frequency
+    are independent across frequencies, with a feature covariance of their own per frequency band.
+
+    ``bases`` (N, D, D) and ``variances`` (N, D): eigen-decomposition of the second moments of the coefficients of
+    band j (frequency j / (2 N) cycles per frame), estimated on N-frame windows (``estimate_spectral_prior``). A
+    row of L frames takes, at its frequency k / (2 L), the band nearest it. The estimate of x0 from x_t under it is
+    the Wiener filter band by band: sqrt(ab) var / (ab var + 1 - ab) along each band's directions."""
+
+    bases: Tensor
+    variances: Tensor
+
+    @property
+    def bands(self) -> int:
+        return int(self.variances.shape[0])
+
+    def estimate(self, centred: Tensor, ab: Tensor, mask: Tensor | None, fallback: Tensor) -> Tensor:
+        """E_lin[x0 - mean | x_t] for ``centred`` = x_t - sqrt(ab) mean (B, T, D), ab (B, 1, 1); frames outside
+        ``mask`` keep ``fallback`` (the frame-by-frame estimate). Each row's DCT is over its own real frames."""
+        n_rows, n_frames, _ = centred.shape
+        device = centred.device
+        lengths = torch.full((n_rows,), n_frames, device=device) if mask is None else mask.sum(dim=1).long()
+        dct = centred.new_zeros(n_rows, n_frames, n_frames)
+        for length in sorted({int(n) for n in lengths.tolist() if n > 0}):
+            dct[lengths == length, :length, :length] = dct_matrix(length, centred.dtype).to(device)
+        coeffs = dct @ centred  # (B, T, D); zero past each row's length
+        k = torch.arange(n_frames, dtype=torch.float64, device=device)[None, :]
+        band = torch.round(k * self.bands / lengths.clamp(min=1)[:, None]).clamp(max=self.bands - 1).long()
+        band[k.expand(n_rows, -1) >= lengths[:, None]] = -1  # (B, T): each coefficient's band, -1 past the length
+        sqrt_ab, one_minus = ab.sqrt().reshape(-1, 1), (1.0 - ab).reshape(-1, 1)  # (B, 1)
+        bases, variances = self.bases.to(centred), self.variances.to(centred)
+        filtered = torch.zeros_like(coeffs)
+        for j in torch.unique(band[band >= 0]).tolist():
+            rows, ks = torch.nonzero(band == j, as_tuple=True)
+            var = variances[j]
+            gain = sqrt_ab[rows] * var / (sqrt_ab[rows] ** 2 * var + one_minus[rows])  # (n, D)
+            filtered[rows, ks] = ((coeffs[rows, ks] @ bases[j]) * gain) @ bases[j].T
+        inside = (torch.arange(n_frames, device=device)[None, :] < lengths[:, None])[..., None]
+        return torch.where(inside, dct.transpose(1, 2) @ filtered, fallback)
+
+
+def estimate_spectral_prior(motions: Sequence[np.ndarray], bands: int) -> SpectralPrior:
+    """``SpectralPrior`` from the (T_i, D) motions' non-overlapping ``bands``-frame windows (shorter clips add
+    none): per DCT frequency, the second moments of the coefficients (uncentred, as the frame-by-frame prior)."""
+    dct = dct_matrix(bands, torch.float64)
+    windows = [
+        torch.from_numpy(np.asarray(m[s : s + bands], dtype=np.float64))
+        for m in motions
+        for s in range(0, len(m) - bands + 1, bands)
+    ]
+    if not windows:
+        raise ValueError(f"no clip has {bands} frames: the spectral prior needs them")
+    coeffs = dct @ torch.stack(windows)  # (W, N, D)
+    moments = torch.einsum("wnd,wne->nde", coeffs, coeffs) / len(windows)
+    var, basis = torch.linalg.eigh(moments)
+    return SpectralPrior(basis.float().contiguous(), var.clamp(min=0).float())
 
 
 def q_mean_variance(schedule: NoiseSchedule, x0: Tensor, t: Tensor) -> tuple[Tensor, Tensor]:

@@ -439,7 +439,8 @@ class UmsdStyleModel:
             def x0_of(x_t: torch.Tensor, t: torch.Tensor, condition: torch.Tensor) -> torch.Tensor:
                 out = self.net.denoise(x_t, t, condition, content.mask).to(x_t.dtype)
                 skip = self.model.info.train.skip
-                return x0_from_output(skip, self.schedule, x_t, t, out, self.model.skip_prior, content.x)
+                prior, spectral = self.model.skip_prior, self.model.spectral
+                return x0_from_output(skip, self.schedule, x_t, t, out, prior, content.x, spectral, content.mask)
 
             def model_fn(x_t: torch.Tensor, t: torch.Tensor, *, uncond: bool = False) -> torch.Tensor:
                 uncond = uncond and int(t[0]) < p.guidance_below  # above the interval x0_u = x0_c: no guidance

@@ -31,7 +31,11 @@ with ``skip`` x0's residual to the linear estimate of x0 from x_t (``augment.dif
 narrower than the features otherwise learns slowly enough to end up copying its clean conditions instead. With
 ``skip: content`` that estimate's prior is centred on the content condition frame by frame: at high noise the
 prediction starts from the content, so the network learns how the style displaces it rather than how to rebuild
-the content through its token mixers (not in the paper).
+the content through its token mixers (not in the paper). The linear estimate's prior treats frames as independent,
+so at every noise level it passes into x0 a share of x_t's frame-to-frame noise that the network must cancel;
+``skip_time: spectral`` gives it a stationary prior over time instead (a feature covariance per temporal
+frequency band, ``augment.diffusion.SpectralPrior``), so the skip itself removes the noise at the frequencies
+real motion lacks (not in the paper).
 ``train_umsd`` runs a fixed number of steps (never a wall-clock cap) and is bit-identical for the same clips,
 config, seed and thread count. Output folder (written to a temporary sibling, then renamed into place):
 ``umsd.safetensors`` (weights) and ``umsd.json`` (``UmsdTrainArtifact``: network config, normaliser, training
@@ -55,7 +59,7 @@ from safetensors.torch import load_file
 from torch import Tensor
 
 from motionaug.augment.corpus.clip import MotionClip
-from motionaug.augment.diffusion import NoiseSchedule, q_sample, skip_x0
+from motionaug.augment.diffusion import NoiseSchedule, SpectralPrior, estimate_spectral_prior, q_sample, skip_x0
 from motionaug.augment.eval.inputs import pad_batch
 from motionaug.augment.io import read_json_model
 from motionaug.augment.methods.base import Progress
@@ -71,9 +75,12 @@ META_FILE = "umsd.json"
 NEUTRAL = "neutral"
 TERMS = ("rec", "dcc", "dsc")
 SKIP_KEYS = ("skip.basis", "skip.var")  # the data prior of ``skip_x0``, saved beside the weights
+SPECTRAL_KEYS = ("skip.spectral_bases", "skip.spectral_variances")  # ``skip_time: spectral``'s prior, the same
+SPECTRAL_BANDS = 32  # frequency bands of the spectral prior: windows of 32 frames, bands 1/64 cycle per frame apart
 FOOT_JOINTS = (*T2M.feet_left, *T2M.feet_right)  # the order of the four foot-contact channels
 PRIOR_SKIPS = ("covariance", "content")  # the skips whose estimate uses the training frames' second moments
-LATER_FIELDS = ("align_content", "synthetic_pairs", "w_spec", "w_acc")  # left out of config dumps at their defaults
+# left out of config dumps at their defaults
+LATER_FIELDS = ("align_content", "synthetic_pairs", "w_spec", "w_acc", "skip_time")
 
 
 class UmsdTrainConfig(BaseModel):
@@ -114,6 +121,12 @@ class UmsdTrainConfig(BaseModel):
         description="x0 = the linear estimate from x_t under a Gaussian prior with the training frames' second "
         "moments (covariance), the same centred on the content condition frame by frame (content), or unit "
         "variance (unit), + the network's residual (augment.diffusion.skip_x0); none: the network's output is x0",
+    )
+    skip_time: Literal["frame", "spectral"] = Field(
+        "frame",
+        description="the skip prior over time (covariance and content skips): frames independent (frame), or "
+        "stationary, a feature covariance per temporal frequency band (spectral, augment.diffusion.SpectralPrior), "
+        "so the skip removes the noise at frequencies real motion lacks instead of passing it to x0 (not in the paper)",
     )
     exclude_styles: tuple[str, ...] = Field((), description="styles held out of training (zero-shot, sec. 4.4)")
     seed: int = 0
@@ -161,6 +174,8 @@ class UmsdTrainConfig(BaseModel):
             raise ValueError(f"max_frames {self.max_frames} > max_len {self.max_len}")
         if self.min_frames > self.max_frames:
             raise ValueError(f"min_frames {self.min_frames} > max_frames {self.max_frames}")
+        if self.skip_time == "spectral" and self.skip not in PRIOR_SKIPS:
+            raise ValueError(f"skip_time 'spectral' needs a skip with a data prior ({', '.join(PRIOR_SKIPS)})")
         return self
 
     def network(self, n_feats: int = T2M.feature_dim) -> UmsdConfig:
@@ -247,6 +262,13 @@ class UmsdData:
         frames = torch.from_numpy(np.concatenate(self.motions)).double()
         var, basis = torch.linalg.eigh(frames.T @ frames / len(frames))
         return basis.float().contiguous(), var.clamp(min=0).float()
+
+    def spectral_prior(self) -> SpectralPrior:
+        """The stationary prior over time of ``skip_time: spectral``, from the same normalised training clips."""
+        try:
+            return estimate_spectral_prior(self.motions, SPECTRAL_BANDS)
+        except ValueError as err:
+            raise MotionDataError("UMSD training clips", str(err)) from None
 
     def summary(self) -> dict[str, Any]:
         count = lambda names: {n: names.count(n) for n in sorted(set(names))}  # noqa: E731
@@ -362,13 +384,16 @@ def x0_from_output(
     out: Tensor,
     prior: tuple[Tensor, Tensor] | tuple[None, None],
     content: Tensor,
+    spectral: SpectralPrior | None = None,
+    mask: Tensor | None = None,
 ) -> Tensor:
     """The x0 prediction from the network's output under ``skip`` (``UmsdTrainConfig.skip``); ``content`` (B, Tc, F)
-    is the normalised content condition, zero at padding, frame i the prior mean of frame i for ``content``."""
+    is the normalised content condition, zero at padding, frame i the prior mean of frame i for ``content``;
+    ``spectral`` (``skip_time: spectral``) with x_t's frame ``mask`` (B, T)."""
     if skip == "none":
         return out
     mean = frame_aligned(content, x_t.shape[1]) if skip == "content" else None
-    return skip_x0(schedule, x_t, t, out, *prior, mean=mean)
+    return skip_x0(schedule, x_t, t, out, *prior, mean=mean, spectral=spectral, mask=mask)
 
 
 # ---- the trainer ----------------------------------------------------------------------------------------------
@@ -406,6 +431,7 @@ class UmsdTrainer:
         blocks = feature_slices(T2M)
         self.feet, self.ric, self.root_y = blocks["feet"], blocks["ric"], blocks["root_y"]
         self.basis, self.var = data.second_moments()
+        self.spectral = data.spectral_prior() if config.skip_time == "spectral" else None
 
     # -- sampling --
 
@@ -465,7 +491,9 @@ class UmsdTrainer:
         x_t = q_sample(self.schedule, batch.x0 * mask[..., None], batch.t, batch.noise)
         keep = mask[..., None].float()
         pred = self.net(x_t, batch.t, batch.content, batch.content_mask, batch.style, batch.style_mask, mask)
-        pred = x0_from_output(cfg.skip, self.schedule, x_t, batch.t, pred, self.skip_prior(), batch.content) * keep
+        prior = self.skip_prior()
+        pred = x0_from_output(cfg.skip, self.schedule, x_t, batch.t, pred, prior, batch.content, self.spectral, mask)
+        pred = pred * keep
         frames = keep.sum(dim=(1, 2)).clamp(min=1)
         l1 = ((pred - batch.x0).abs() * keep).sum(dim=(1, 2)) / (frames * pred.shape[-1])  # (B,)
         out: dict[str, Tensor] = {}
@@ -582,6 +610,8 @@ def train_umsd(
         seconds=time.perf_counter() - start,
     )
     tensors = {**trainer.net.state_dict(), **dict(zip(SKIP_KEYS, (trainer.basis, trainer.var)))}
+    if trainer.spectral is not None:
+        tensors.update(zip(SPECTRAL_KEYS, (trainer.spectral.bases, trainer.spectral.variances)))
     return write_model_folder(Path(out_dir), {WEIGHTS_FILE: tensors}, {META_FILE: artifact.model_dump_json(indent=1)})
 
 
@@ -598,6 +628,7 @@ class UmsdModel:
     normalizer: Normalizer
     info: UmsdTrainArtifact
     skip_prior: tuple[Tensor, Tensor] | tuple[None, None]  # (basis, var) of ``skip_x0``, or (None, None)
+    spectral: SpectralPrior | None = None  # ``skip_time: spectral``'s prior
 
 
 def load_umsd(path: str | os.PathLike[str]) -> UmsdModel:
@@ -610,9 +641,13 @@ def load_umsd(path: str | os.PathLike[str]) -> UmsdModel:
         prior = tuple(tensors.pop(k, None) for k in SKIP_KEYS)  # absent from folders trained before the skip
         if info.train.skip in PRIOR_SKIPS and None in prior:
             raise ValueError("no skip.basis / skip.var beside the weights")
+        bands = tuple(tensors.pop(k, None) for k in SPECTRAL_KEYS)
+        if info.train.skip_time == "spectral" and None in bands:
+            raise ValueError("no skip.spectral_bases / skip.spectral_variances beside the weights")
         net.load_state_dict(tensors, strict=True)
     except Exception as err:  # safetensors, shape or key mismatches: one line, naming the folder
         raise MotionDataError(str(folder), f"unreadable UMSD weights ({str(err).splitlines()[0]})") from None
     normalizer = Normalizer(np.asarray(info.normalizer["mean"]), np.asarray(info.normalizer["std"]))
     skip_prior = prior if info.train.skip in PRIOR_SKIPS else (None, None)
-    return UmsdModel(net.eval().requires_grad_(False), normalizer, info, skip_prior)
+    spectral = SpectralPrior(*bands) if info.train.skip_time == "spectral" else None
+    return UmsdModel(net.eval().requires_grad_(False), normalizer, info, skip_prior, spectral)
