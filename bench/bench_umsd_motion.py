@@ -1,11 +1,12 @@
-"""How UMSD's synthetic transfers move, against their sources and the true renders: root height and roughness.
+"""How UMSD's synthetic transfers move, against their sources and the true renders: root height, pace, roughness.
 
   python bench/bench_umsd_motion.py --corpus SYNTH/corpus --work WORK --tag TAG --split val [--style depressed]
       [--by-content]
 
 Reads ``WORK/<tag>-<split>-outputs.npz`` written by bench_umsd_quality.py (no model runs) and renders each source
 spec in the target style (the true transfer). Per style (and with ``--by-content`` per source content), means over
-clips of: the root height (metres); the roughness, the mean absolute second difference over frames of the
+clips of: the root height (metres); the pace, the root's mean ground speed (m/s, at the corpus's 20 fps); the
+roughness, the mean absolute second difference over frames of the
 facing-frame joints (``ric``, metres per frame squared: frame-to-frame jitter, which no real motion here has much
 of); and the motion, the mean over joint coordinates of their standard deviation over frames (metres).
 """
@@ -23,15 +24,20 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_umsd_quality import RIC, load_clips  # noqa: E402
 
+from motionaug.augment.motion.features import feature_slices  # noqa: E402
 from motionaug.augment.synth import restyled  # noqa: E402
+from motionaug.schemas.skeleton import T2M  # noqa: E402
 
-COLUMNS = ("root_y", "roughness", "motion")
+COLUMNS = ("root_y", "pace", "roughness", "motion")
+FPS = 20.0  # the synthetic corpus's frame rate
+ROOT_LIN_VEL = feature_slices(T2M)["root_lin_vel"]  # the root's xz displacement per frame, in its facing frame
 
 
 def measures(motion: np.ndarray) -> dict[str, float]:
     joints = np.asarray(motion, dtype=np.float64)[:, RIC]
     return {
         "root_y": float(np.mean(motion[:, 3])),
+        "pace": float(np.linalg.norm(motion[:, ROOT_LIN_VEL], axis=1).mean() * FPS),
         "roughness": float(np.abs(np.diff(joints, n=2, axis=0)).mean()),
         "motion": float(joints.std(axis=0).mean()),
     }

@@ -17,7 +17,7 @@ from pydantic import ValidationError
 
 from motionaug.augment.corpus import Corpus, MotionClip, Reject
 from motionaug.augment.methods.base import ARTIFACT_JSON, TrainingSpec, TransferOutput
-from motionaug.augment.methods.common import trajectory_channels
+from motionaug.augment.methods.common import feet_channels, trajectory_channels
 from motionaug.augment.methods.umsd import (
     UmsdTrainConfig,
     UmsdTrainer,
@@ -27,6 +27,7 @@ from motionaug.augment.methods.umsd import (
     train_umsd,
 )
 from motionaug.augment.methods.umsd.method import (
+    CEILING_BANDS,
     UmsdMethod,
     UmsdParams,
     blend_ramp,
@@ -34,7 +35,8 @@ from motionaug.augment.methods.umsd.method import (
     smoothed,
     window_spans,
 )
-from motionaug.augment.methods.umsd.training import x0_from_output
+from motionaug.augment.methods.umsd.training import pace_channels, x0_from_output
+from motionaug.augment.motion.spectrum import band_power
 from motionaug.augment.synth import generate_corpus, restyled
 from motionaug.models.umsd import UmsdConfig, UmsdNet, pack
 from motionaug.schemas.errors import MotionDataError
@@ -302,6 +304,29 @@ def test_skips_lower_the_loss_and_the_content_skip_starts_from_the_content(clips
         assert x0.abs().max() < 0.05
 
 
+def test_without_the_content_pace_the_skip_leaves_the_ground_velocity_to_the_network(clips: list[MotionClip]) -> None:
+    assert "content_pace" not in UmsdTrainConfig().model_dump()  # the keys of models trained before it stay the same
+    assert pace_channels(UmsdTrainConfig(skip="covariance", content_pace=False)) == []  # only the content skip
+    config = UmsdTrainConfig(**TINY, lr=2e-3, skip="content", content_pace=False)
+    free = pace_channels(config)
+    assert free == [1, 2] and trajectory_channels("heading") == [0, 3]  # xz velocity free; yaw and height kept
+    torch.manual_seed(0)
+    trainer = UmsdTrainer(prepare_data(clips, config), config)
+    batch = trainer.sample()
+    before = trainer.evaluate(batch)
+    trainer.train_step(batch)
+    assert trainer.evaluate(batch)["total"] < before["total"]
+    # at pure noise a zero residual predicts the content frame by frame, but the data mean for the ground velocity
+    x_t = torch.randn(batch.x0.shape)
+    t = torch.full((len(batch.kinds),), 999)
+    zero = torch.zeros_like(x_t)
+    x0 = x0_from_output("content", trainer.schedule, x_t, t, zero, trainer.skip_prior(), batch.content, free=free)
+    frames = min(batch.x0.shape[1], batch.content.shape[1])
+    body = [c for c in range(263) if c not in free]
+    torch.testing.assert_close(x0[:, :frames, body], batch.content[:, :frames, body], atol=0.05, rtol=0)
+    assert x0[..., free].abs().max() < 0.05 and batch.content[:, :frames, free].abs().max() > 0.5
+
+
 def test_the_spectral_skip_trains_and_its_prior_goes_with_the_weights(clips: list[MotionClip], tmp_path: Path) -> None:
     with pytest.raises(ValidationError, match="skip_time 'spectral' needs a skip"):
         UmsdTrainConfig(skip="none", skip_time="spectral")
@@ -447,6 +472,27 @@ def test_zero_shot_transfer_of_a_held_out_style(corpus: Path, tmp_path: Path) ->
     alone = model.transfer([content[1]], seed=3)[0]
     np.testing.assert_allclose(alone.motion, outputs[2].motion, atol=1e-4)
     assert not np.allclose(model.transfer([content[1]], seed=4)[0].motion, alone.motion)
+    # the spectral ceiling: above ceiling_from_hz no generated channel has more power per band than the content
+    # clip or the example (normalised features), below it and in the contacts the output is the plain one
+    capped_model = UmsdMethod({**params, "ceiling_slack": 1.0, "ceiling_from_hz": 2.5}).load(artifact, trained)
+    capped = capped_model.transfer([content[1]], seed=3)[0].motion
+    norm = capped_model.model.normalizer
+    feet = feet_channels()
+    signal = [c for c in range(263) if c not in set(feet) | set(kept)]
+    bands, from_band = CEILING_BANDS, 4  # 2.5 Hz at 20 fps in bands of 0.625 Hz
+
+    def power(motion: np.ndarray) -> torch.Tensor:
+        return band_power(torch.from_numpy(norm.normalize(motion)[:, signal]).double(), bands)
+
+    ceiling = torch.maximum(power(content[1].motion), power(norm.denormalize(capped_model.examples[0].numpy())))
+    assert (power(capped)[from_band:] <= ceiling[from_band:] * (1 + 1e-4) + 1e-8).all()
+    assert (power(alone.motion)[from_band:] > ceiling[from_band:] * 1.01).any()  # there was something to cut
+    torch.testing.assert_close(power(capped)[:from_band], power(alone.motion)[:from_band], rtol=1e-3, atol=1e-6)
+    np.testing.assert_array_equal(capped[:, feet], alone.motion[:, feet])
+    # keep: heading keeps the content's turning and root height, and leaves its ground speed to the network
+    heading = UmsdMethod({**params, "keep": "heading"}).load(artifact, trained).transfer([content[1]], seed=3)[0]
+    np.testing.assert_array_equal(heading.motion[:, [0, 3]], content[1].motion[:, [0, 3]])
+    assert not np.allclose(heading.motion[:, [1, 2]], content[1].motion[:, [1, 2]], atol=1e-3)
     # style guidance changes the output, and limiting it to the last step (t < 1) changes it again
     unguided = alone.motion
     guided = {}

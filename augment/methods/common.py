@@ -142,8 +142,11 @@ class MotionBatch:
 
 
 def trajectory_channels(mode: str = "horizontal") -> list[int]:
-    """Feature channels that carry the root trajectory: rotation velocity + xz velocity (+ height for ``root``)."""
+    """Feature channels that carry the root trajectory: rotation velocity + xz velocity (+ height for ``root``);
+    ``heading``: rotation velocity + height (the path's turns, not its pace)."""
     slices = feature_slices(T2M)
+    if mode == "heading":
+        return [c for block in ("root_rot_vel", "root_y") for c in range(slices[block].start, slices[block].stop)]
     blocks = ["root_rot_vel", "root_lin_vel"] + (["root_y"] if mode == "root" else [])
     return [c for block in blocks for c in range(slices[block].start, slices[block].stop)]
 

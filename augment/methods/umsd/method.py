@@ -57,11 +57,13 @@ from motionaug.augment.methods.umsd.training import (
     UmsdModel,
     UmsdTrainConfig,
     load_umsd,
+    pace_channels,
     train_umsd,
     x0_from_output,
 )
 from motionaug.augment.motion.features import feature_slices
 from motionaug.augment.motion.kinematics import gaussian_smooth_time
+from motionaug.augment.motion.spectrum import spectral_ceiling
 from motionaug.augment.outputs.checksums import RUN_FACTS
 from motionaug.schemas.captions import Caption
 from motionaug.schemas.errors import MotionDataError
@@ -70,6 +72,7 @@ from motionaug.schemas.styles import StyleSpec
 
 METHOD_NAME = "umsd"
 NUM_TIMESTEPS = 1000
+CEILING_BANDS = 16  # frequency bands of ``ceiling_slack``: fps / 32 Hz wide (0.625 Hz at 20 fps)
 
 
 class UmsdParams(BaseModel):
@@ -103,8 +106,10 @@ class UmsdParams(BaseModel):
         description="style guidance only at timesteps below this, unguided above (guidance limited to an interval, "
         "Kynkaanniemi et al. 2024): the gross motion forms unguided; 1000: guidance at every step",
     )
-    keep: Literal["horizontal", "root", "none"] = Field(
-        "horizontal", description="content channels kept by inpainting: root xz + yaw velocities (+ height: root)"
+    keep: Literal["horizontal", "root", "heading", "none"] = Field(
+        "horizontal",
+        description="content channels kept by inpainting: root xz + yaw velocities (+ height: root); heading: yaw "
+        "velocity + height, the pace left to the network (a network trained with content_pace: false)",
     )
     reference_pool: int = Field(
         64, ge=1, description="content clips the plan hands ``prepare`` to pick style-contrast references from"
@@ -116,6 +121,15 @@ class UmsdParams(BaseModel):
         "foot contacts: removes the frame-to-frame jitter of the network's outputs, which the eye and a content "
         "classifier read as extra motion (0: none)",
     )
+    ceiling_slack: float = Field(
+        0.0,
+        ge=0.0,
+        description="> 0: each generated channel's power per frequency band from ceiling_from_hz up is capped at "
+        "slack^2 times the larger of the content clip's and the style example's (augment.motion.spectrum."
+        "spectral_ceiling): removes the jitter at frequencies neither motion has and keeps the fast parts either "
+        "has, where a Gaussian over time takes both (0: none)",
+    )
+    ceiling_from_hz: float = Field(2.5, ge=0.0, description="lowest frequency the ceiling applies to, Hz")
     window: int | None = Field(
         None,
         ge=0,
@@ -440,7 +454,8 @@ class UmsdStyleModel:
                 out = self.net.denoise(x_t, t, condition, content.mask).to(x_t.dtype)
                 skip = self.model.info.train.skip
                 prior, spectral = self.model.skip_prior, self.model.spectral
-                return x0_from_output(skip, self.schedule, x_t, t, out, prior, content.x, spectral, content.mask)
+                free = pace_channels(self.model.info.train)
+                return x0_from_output(skip, self.schedule, x_t, t, out, prior, content.x, spectral, content.mask, free)
 
             def model_fn(x_t: torch.Tensor, t: torch.Tensor, *, uncond: bool = False) -> torch.Tensor:
                 uncond = uncond and int(t[0]) < p.guidance_below  # above the interval x0_u = x0_c: no guidance
@@ -497,12 +512,29 @@ class UmsdStyleModel:
                 weights[j][a:b] += ramp
         return [s / w for s, w in zip(sums, weights)]
 
+    def _under_ceiling(self, output: np.ndarray, job: _Job) -> np.ndarray:
+        """A normalised output under the spectral ceiling of its content clip and style example (foot contacts,
+        labels rather than signals, untouched)."""
+        bands = CEILING_BANDS
+        band_hz = self.model.info.fps / 2.0 / bands
+        from_band = min(bands, int(np.ceil(self.params.ceiling_from_hz / band_hz - 1e-9)))
+        content = torch.from_numpy(self.model.normalizer.normalize(job.motion).astype(np.float32))
+        example = self.examples[self.example_index(job.clip.id)]
+        capped = spectral_ceiling(
+            torch.from_numpy(output), [content, example], bands, from_band, self.params.ceiling_slack
+        )
+        out = capped.numpy().astype(np.float32)
+        feet = feet_channels()
+        out[:, feet] = output[:, feet]
+        return out
+
     def _transfer_batch(self, jobs: Sequence[_Job], seed: int) -> list[TransferOutput | Reject]:
         norm = self.model.normalizer
         outputs = self._sample_windows(jobs, seed)
         results: list[TransferOutput | Reject] = []
         for i, job in enumerate(jobs):
-            motion = smoothed(norm.denormalize(outputs[i]).astype(np.float32), self.params.smooth_frames)
+            output = self._under_ceiling(outputs[i], job) if self.params.ceiling_slack > 0 else outputs[i]
+            motion = smoothed(norm.denormalize(output).astype(np.float32), self.params.smooth_frames)
             motion[:, self.kept] = job.motion[:, self.kept]  # exactly the content's, not up to rounding
             if not np.isfinite(motion).all():
                 results.append(Reject(id=job.clip.id, source=f"clip {job.clip.id}", reason="non-finite UMSD output"))

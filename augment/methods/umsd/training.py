@@ -80,7 +80,7 @@ SPECTRAL_BANDS = 32  # frequency bands of the spectral prior: windows of 32 fram
 FOOT_JOINTS = (*T2M.feet_left, *T2M.feet_right)  # the order of the four foot-contact channels
 PRIOR_SKIPS = ("covariance", "content")  # the skips whose estimate uses the training frames' second moments
 # left out of config dumps at their defaults
-LATER_FIELDS = ("align_content", "synthetic_pairs", "w_spec", "w_acc", "skip_time")
+LATER_FIELDS = ("align_content", "synthetic_pairs", "w_spec", "w_acc", "skip_time", "content_pace")
 
 
 class UmsdTrainConfig(BaseModel):
@@ -127,6 +127,12 @@ class UmsdTrainConfig(BaseModel):
         description="the skip prior over time (covariance and content skips): frames independent (frame), or "
         "stationary, a feature covariance per temporal frequency band (spectral, augment.diffusion.SpectralPrior), "
         "so the skip removes the noise at frequencies real motion lacks instead of passing it to x0 (not in the paper)",
+    )
+    content_pace: bool = Field(
+        True,
+        description="skip: content centres the root's ground velocity on the content's too; False: on the data "
+        "mean, so the network sets the pace itself from the style example (styles that walk slower or faster; "
+        "sample with keep: heading, which keeps the content's turning but not its speed) (not in the paper)",
     )
     exclude_styles: tuple[str, ...] = Field((), description="styles held out of training (zero-shot, sec. 4.4)")
     seed: int = 0
@@ -376,6 +382,14 @@ def prepare_data(clips: Sequence[MotionClip], config: UmsdTrainConfig | None = N
     )
 
 
+def pace_channels(config: UmsdTrainConfig) -> list[int]:
+    """The channels ``content_pace: false`` takes out of the content-centred prior: the root's ground velocity."""
+    if config.content_pace or config.skip != "content":
+        return []
+    block = feature_slices(T2M)["root_lin_vel"]
+    return list(range(block.start, block.stop))
+
+
 def x0_from_output(
     skip: str,
     schedule: NoiseSchedule,
@@ -386,13 +400,18 @@ def x0_from_output(
     content: Tensor,
     spectral: SpectralPrior | None = None,
     mask: Tensor | None = None,
+    free: Sequence[int] = (),
 ) -> Tensor:
     """The x0 prediction from the network's output under ``skip`` (``UmsdTrainConfig.skip``); ``content`` (B, Tc, F)
-    is the normalised content condition, zero at padding, frame i the prior mean of frame i for ``content``;
-    ``spectral`` (``skip_time: spectral``) with x_t's frame ``mask`` (B, T)."""
+    is the normalised content condition, zero at padding, frame i the prior mean of frame i for ``content``, but
+    in the ``free`` channels (``pace_channels``), whose prior mean is the data mean; ``spectral`` (``skip_time:
+    spectral``) with x_t's frame ``mask`` (B, T)."""
     if skip == "none":
         return out
     mean = frame_aligned(content, x_t.shape[1]) if skip == "content" else None
+    if mean is not None and len(free):
+        mean = mean.clone()
+        mean[..., list(free)] = 0.0  # normalised: the data mean
     return skip_x0(schedule, x_t, t, out, *prior, mean=mean, spectral=spectral, mask=mask)
 
 
@@ -492,7 +511,9 @@ class UmsdTrainer:
         keep = mask[..., None].float()
         pred = self.net(x_t, batch.t, batch.content, batch.content_mask, batch.style, batch.style_mask, mask)
         prior = self.skip_prior()
-        pred = x0_from_output(cfg.skip, self.schedule, x_t, batch.t, pred, prior, batch.content, self.spectral, mask)
+        pred = x0_from_output(
+            cfg.skip, self.schedule, x_t, batch.t, pred, prior, batch.content, self.spectral, mask, pace_channels(cfg)
+        )
         pred = pred * keep
         frames = keep.sum(dim=(1, 2)).clamp(min=1)
         l1 = ((pred - batch.x0).abs() * keep).sum(dim=(1, 2)) / (frames * pred.shape[-1])  # (B,)

@@ -1,0 +1,112 @@
+"""Clean-ups of UMSD's outputs after sampling, scored without sampling again: the spectral ceiling and smoothing.
+
+  python bench/bench_umsd_rescore.py --corpus CORPUS --base BASE --work WORK --tag TAG --split val
+      --variant SLACK:FROM_HZ:SMOOTH [--variant ...]
+
+Reads ``WORK/<tag>-<split>.json`` and ``-outputs.npz`` of a bench_umsd_quality.py run made without clean-up
+(``ceiling_slack`` and ``smooth_frames`` 0), applies to every output what ``UmsdStyleModel`` would with
+``ceiling_slack`` SLACK (0: none), ``ceiling_from_hz`` FROM_HZ and ``smooth_frames`` SMOOTH, in that order, restores
+the kept channels, and scores like bench_umsd_quality.py (same evaluators, same held-out clips). A variant with
+SLACK 0 and SMOOTH 0 gives the run's own figures back. Prints one row per variant.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections import defaultdict
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_umsd_quality import load_clips, score, splits  # noqa: E402
+
+from motionaug.augment.corpus import MotionClip  # noqa: E402
+from motionaug.augment.methods.base import TransferOutput  # noqa: E402
+from motionaug.augment.methods.common import feet_channels, trajectory_channels  # noqa: E402
+from motionaug.augment.methods.umsd import load_umsd  # noqa: E402
+from motionaug.augment.methods.umsd.method import CEILING_BANDS, UmsdMethod, smoothed  # noqa: E402
+from motionaug.augment.motion.spectrum import spectral_ceiling  # noqa: E402
+
+
+def parse_variant(text: str) -> tuple[float, float, float]:
+    slack, from_hz, smooth = (float(v) for v in text.split(":"))
+    return slack, from_hz, smooth
+
+
+def cleaned(
+    motion: np.ndarray, source: MotionClip, example: torch.Tensor, model: Any, variant: tuple[float, float, float]
+) -> np.ndarray:
+    """``motion`` (raw features) as ``UmsdStyleModel._transfer_batch`` would leave it under ``variant``."""
+    slack, from_hz, smooth = variant
+    norm = model.normalizer
+    out = np.asarray(motion, dtype=np.float32)
+    if slack > 0:
+        x = norm.normalize(out).astype(np.float32)
+        content = torch.from_numpy(norm.normalize(source.motion).astype(np.float32))
+        from_band = min(CEILING_BANDS, int(np.ceil(from_hz / (model.info.fps / 2.0 / CEILING_BANDS) - 1e-9)))
+        capped = spectral_ceiling(torch.from_numpy(x), [content, example], CEILING_BANDS, from_band, slack).numpy()
+        capped[:, feet_channels()] = x[:, feet_channels()]
+        out = norm.denormalize(capped).astype(np.float32)
+    return smoothed(out, smooth)
+
+
+def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--corpus", type=Path, required=True)
+    parser.add_argument("--base", type=Path, required=True, help="base models with evaluators fit on the train split")
+    parser.add_argument("--work", type=Path, required=True)
+    parser.add_argument("--tag", required=True)
+    parser.add_argument("--split", choices=("val", "test"), default="val")
+    parser.add_argument("--variant", action="append", required=True, help="SLACK:FROM_HZ:SMOOTH (repeatable)")
+    parser.add_argument("--threads", type=int, default=1)
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    run = json.loads((args.work / f"{args.tag}-{args.split}.json").read_text())
+    params = run["transfer"]["params"]
+    if params.get("ceiling_slack", 0) or params.get("smooth_frames", 0):
+        raise SystemExit(f"{args.tag}: its outputs were already cleaned up; rescore a run without clean-up")
+    keep = params.get("keep", "horizontal")
+    kept = [] if keep == "none" else trajectory_channels(keep)
+    model = load_umsd(args.work / run["train"]["dir"])
+    clips = load_clips(args.corpus)
+    ids = splits(args.corpus)
+    held: dict[str, list[MotionClip]] = defaultdict(list)
+    for i in ids[args.split]:
+        if i in clips:
+            held[clips[i].style].append(clips[i])
+    train_by_style: dict[str, list[MotionClip]] = defaultdict(list)
+    for i in ids["train"]:
+        if i in clips:
+            train_by_style[clips[i].style].append(clips[i])
+    raw = np.load(args.work / f"{args.tag}-{args.split}-outputs.npz")
+    examples = {s: UmsdMethod._stored(clips[e].motion, model) for s, e in run["examples"].items()}
+    sources = {k.split("/", 1)[1]: clips[k.split("/", 1)[1]] for k in raw.keys()}
+    rows = []
+    print(f"{args.tag} ({args.split}), clean-ups of its outputs\n")
+    print("| ceiling slack | from Hz | smooth frames | CRA | SRA (min) | per style CRA / SRA | foot skating |")
+    print("|---:|---:|---:|---:|---|---|---:|")
+    for text in args.variant:
+        variant = parse_variant(text)
+        outputs: dict[str, list[TransferOutput]] = defaultdict(list)
+        for key in sorted(raw.keys()):
+            style, source_id = key.split("/", 1)
+            motion = cleaned(raw[key], sources[source_id], examples[style], model, variant)
+            motion[:, kept] = sources[source_id].motion[:, kept]
+            outputs[style].append(TransferOutput(source_id=source_id, style=style, motion=motion, captions=[]))
+        result = score(SimpleNamespace(base=args.base), outputs, held, train_by_style, sources)
+        m = result["mean"]
+        per = ", ".join(f"{s} {r['cra']:.0%} / {r['sra']:.0%}" for s, r in result["styles"].items())
+        cells = [f"{v:g}" for v in variant] + [f"{m['cra']:.1%}", f"{m['sra']:.1%} ({m['sra_min']:.1%})", per]
+        print("| " + " | ".join(cells) + f" | {m['foot_skating']:.3f} |", flush=True)
+        rows.append({"variant": variant, **result})
+    return rows
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
