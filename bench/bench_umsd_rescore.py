@@ -28,10 +28,9 @@ from bench_umsd_quality import load_clips, score, splits  # noqa: E402
 
 from motionaug.augment.corpus import MotionClip  # noqa: E402
 from motionaug.augment.methods.base import TransferOutput  # noqa: E402
-from motionaug.augment.methods.common import feet_channels, trajectory_channels  # noqa: E402
+from motionaug.augment.methods.common import trajectory_channels  # noqa: E402
 from motionaug.augment.methods.umsd import load_umsd  # noqa: E402
-from motionaug.augment.methods.umsd.method import CEILING_BANDS, UmsdMethod, smoothed  # noqa: E402
-from motionaug.augment.motion.spectrum import spectral_ceiling  # noqa: E402
+from motionaug.augment.methods.umsd.method import UmsdMethod, UmsdParams, smoothed, under_ceiling  # noqa: E402
 
 
 def parse_variant(text: str) -> tuple[float, float, float]:
@@ -44,14 +43,12 @@ def cleaned(
 ) -> np.ndarray:
     """``motion`` (raw features) as ``UmsdStyleModel._transfer_batch`` would leave it under ``variant``."""
     slack, from_hz, smooth = variant
-    norm = model.normalizer
     out = np.asarray(motion, dtype=np.float32)
     if slack > 0:
-        x = norm.normalize(out).astype(np.float32)
-        content = torch.from_numpy(norm.normalize(source.motion).astype(np.float32))
-        from_band = min(CEILING_BANDS, int(np.ceil(from_hz / (model.info.fps / 2.0 / CEILING_BANDS) - 1e-9)))
-        capped = spectral_ceiling(torch.from_numpy(x), [content, example], CEILING_BANDS, from_band, slack).numpy()
-        capped[:, feet_channels()] = x[:, feet_channels()]
+        norm = model.normalizer
+        params = UmsdParams(ceiling_slack=slack, ceiling_from_hz=from_hz)
+        content = norm.normalize(source.motion).astype(np.float32)
+        capped = under_ceiling(norm.normalize(out).astype(np.float32), content, example, model.info.fps, params)
         out = norm.denormalize(capped).astype(np.float32)
     return smoothed(out, smooth)
 

@@ -322,6 +322,19 @@ def smoothed(motion: np.ndarray, sigma: float) -> np.ndarray:
     return out
 
 
+def under_ceiling(
+    output: np.ndarray, content: np.ndarray, example: torch.Tensor, fps: float, params: UmsdParams
+) -> np.ndarray:
+    """A normalised output (T, F) under the spectral ceiling (``ceiling_slack``) of its normalised content clip and
+    style example; the foot contacts, labels rather than signals, untouched."""
+    from_band = min(CEILING_BANDS, int(np.ceil(params.ceiling_from_hz / (fps / 2.0 / CEILING_BANDS) - 1e-9)))
+    references = [torch.from_numpy(content), example]
+    capped = spectral_ceiling(torch.from_numpy(output), references, CEILING_BANDS, from_band, params.ceiling_slack)
+    out = capped.numpy().astype(np.float32)
+    out[:, feet_channels()] = output[:, feet_channels()]
+    return out
+
+
 def root_motion(motion: np.ndarray) -> np.ndarray:
     """What a clip's root does, a summary that style changes little: mean ground speed and turning rate (per
     frame), the spread of the root height and the share of frames with a foot on the ground."""
@@ -512,28 +525,16 @@ class UmsdStyleModel:
                 weights[j][a:b] += ramp
         return [s / w for s, w in zip(sums, weights)]
 
-    def _under_ceiling(self, output: np.ndarray, job: _Job) -> np.ndarray:
-        """A normalised output under the spectral ceiling of its content clip and style example (foot contacts,
-        labels rather than signals, untouched)."""
-        bands = CEILING_BANDS
-        band_hz = self.model.info.fps / 2.0 / bands
-        from_band = min(bands, int(np.ceil(self.params.ceiling_from_hz / band_hz - 1e-9)))
-        content = torch.from_numpy(self.model.normalizer.normalize(job.motion).astype(np.float32))
-        example = self.examples[self.example_index(job.clip.id)]
-        capped = spectral_ceiling(
-            torch.from_numpy(output), [content, example], bands, from_band, self.params.ceiling_slack
-        )
-        out = capped.numpy().astype(np.float32)
-        feet = feet_channels()
-        out[:, feet] = output[:, feet]
-        return out
-
     def _transfer_batch(self, jobs: Sequence[_Job], seed: int) -> list[TransferOutput | Reject]:
         norm = self.model.normalizer
         outputs = self._sample_windows(jobs, seed)
         results: list[TransferOutput | Reject] = []
         for i, job in enumerate(jobs):
-            output = self._under_ceiling(outputs[i], job) if self.params.ceiling_slack > 0 else outputs[i]
+            output = outputs[i]
+            if self.params.ceiling_slack > 0:
+                content = norm.normalize(job.motion).astype(np.float32)
+                example = self.examples[self.example_index(job.clip.id)]
+                output = under_ceiling(output, content, example, self.model.info.fps, self.params)
             motion = smoothed(norm.denormalize(output).astype(np.float32), self.params.smooth_frames)
             motion[:, self.kept] = job.motion[:, self.kept]  # exactly the content's, not up to rounding
             if not np.isfinite(motion).all():
