@@ -91,6 +91,15 @@ def load_clips(corpus: Path) -> dict[str, MotionClip]:
     return {c.id: c for c in Corpus(corpus, split_spans=False)}
 
 
+def by_style(clips: dict[str, MotionClip], ids: list[str]) -> dict[str, list[MotionClip]]:
+    """The corpus's clips among ``ids``, by style label."""
+    out: dict[str, list[MotionClip]] = defaultdict(list)
+    for i in ids:
+        if i in clips:
+            out[clips[i].style].append(clips[i])
+    return out
+
+
 def train_config(args: argparse.Namespace) -> UmsdTrainConfig:
     fields = {**PRESETS[args.preset], "steps": args.steps, "threads": args.threads}
     if args.hold_out:
@@ -313,14 +322,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     print(json.dumps(train_facts), flush=True)
     if args.train_only:
         return train_facts
-    held: dict[str, list[MotionClip]] = defaultdict(list)
-    for i in ids[args.split]:
-        if i in clips:
-            held[clips[i].style].append(clips[i])
-    train_by_style: dict[str, list[MotionClip]] = defaultdict(list)
-    for i in ids["train"]:
-        if i in clips:
-            train_by_style[clips[i].style].append(clips[i])
+    held, train_by_style = by_style(clips, ids[args.split]), by_style(clips, ids["train"])
     sources = sorted(held[args.neutral], key=lambda c: c.id)
     if args.limit:
         sources = sources[: args.limit]

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_umsd_quality import load_clips, score, splits  # noqa: E402
+from bench_umsd_quality import by_style, load_clips, score, splits  # noqa: E402
 
 from motionaug.augment.corpus import MotionClip  # noqa: E402
 from motionaug.augment.methods.base import TransferOutput  # noqa: E402
@@ -73,14 +73,7 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
     model = load_umsd(args.work / run["train"]["dir"])
     clips = load_clips(args.corpus)
     ids = splits(args.corpus)
-    held: dict[str, list[MotionClip]] = defaultdict(list)
-    for i in ids[args.split]:
-        if i in clips:
-            held[clips[i].style].append(clips[i])
-    train_by_style: dict[str, list[MotionClip]] = defaultdict(list)
-    for i in ids["train"]:
-        if i in clips:
-            train_by_style[clips[i].style].append(clips[i])
+    held, train_by_style = by_style(clips, ids[args.split]), by_style(clips, ids["train"])
     raw = np.load(args.work / f"{args.tag}-{args.split}-outputs.npz")
     examples = {s: UmsdMethod._stored(clips[e].motion, model) for s, e in run["examples"].items()}
     sources = {k.split("/", 1)[1]: clips[k.split("/", 1)[1]] for k in raw.keys()}

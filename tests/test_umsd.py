@@ -9,6 +9,7 @@ import copy
 import dataclasses
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -283,15 +284,21 @@ def test_the_acceleration_term_charges_frame_to_frame_shake_not_a_smooth_offset(
     assert trainer.evaluate(batch)["total"] < before["total"]
 
 
-@pytest.mark.parametrize("skip", ["covariance", "content"])
-def test_skips_lower_the_loss_and_the_content_skip_starts_from_the_content(clips: list[MotionClip], skip: str) -> None:
-    config = UmsdTrainConfig(**TINY, lr=2e-3, skip=skip)
+def _one_step_lowers_the_loss(clips: list[MotionClip], config: UmsdTrainConfig) -> tuple[UmsdTrainer, Any]:
+    """A trainer seeded 0, after one step that must lower the loss on its own batch; the trainer and that batch."""
     torch.manual_seed(0)
     trainer = UmsdTrainer(prepare_data(clips, config), config)
     batch = trainer.sample()
     before = trainer.evaluate(batch)
     trainer.train_step(batch)
     assert trainer.evaluate(batch)["total"] < before["total"]
+    return trainer, batch
+
+
+@pytest.mark.parametrize("skip", ["covariance", "content"])
+def test_skips_lower_the_loss_and_the_content_skip_starts_from_the_content(clips: list[MotionClip], skip: str) -> None:
+    config = UmsdTrainConfig(**TINY, lr=2e-3, skip=skip)
+    trainer, batch = _one_step_lowers_the_loss(clips, config)
     # at pure noise a zero residual predicts the prior mean: the content frame by frame (zeros past its end)
     x_t = torch.randn(batch.x0.shape)
     t = torch.full((len(batch.kinds),), 999)
@@ -310,12 +317,7 @@ def test_without_the_content_pace_the_skip_leaves_the_ground_velocity_to_the_net
     config = UmsdTrainConfig(**TINY, lr=2e-3, skip="content", content_pace=False)
     free = pace_channels(config)
     assert free == [1, 2] and trajectory_channels("heading") == [0, 3]  # xz velocity free; yaw and height kept
-    torch.manual_seed(0)
-    trainer = UmsdTrainer(prepare_data(clips, config), config)
-    batch = trainer.sample()
-    before = trainer.evaluate(batch)
-    trainer.train_step(batch)
-    assert trainer.evaluate(batch)["total"] < before["total"]
+    trainer, batch = _one_step_lowers_the_loss(clips, config)
     # at pure noise a zero residual predicts the content frame by frame, but the data mean for the ground velocity
     x_t = torch.randn(batch.x0.shape)
     t = torch.full((len(batch.kinds),), 999)
@@ -332,13 +334,8 @@ def test_the_spectral_skip_trains_and_its_prior_goes_with_the_weights(clips: lis
         UmsdTrainConfig(skip="none", skip_time="spectral")
     assert "skip_time" not in UmsdTrainConfig().model_dump()  # the keys of models trained before it stay the same
     config = UmsdTrainConfig(**TINY, lr=2e-3, skip="content", skip_time="spectral")
-    torch.manual_seed(0)
-    trainer = UmsdTrainer(prepare_data(clips, config), config)
+    trainer, _ = _one_step_lowers_the_loss(clips, config)
     assert trainer.spectral is not None and trainer.spectral.bases.shape == (32, 263, 263)
-    batch = trainer.sample()
-    before = trainer.evaluate(batch)
-    trainer.train_step(batch)
-    assert trainer.evaluate(batch)["total"] < before["total"]
     model = load_umsd(train_umsd(clips, tmp_path / "s", config.model_copy(update={"steps": 1})))
     assert model.spectral is not None
     torch.testing.assert_close(model.spectral.variances, trainer.spectral.variances)

@@ -463,11 +463,11 @@ class UmsdStyleModel:
             cond = self.net.condition(content.x, content.mask, style, style_mask)
             own = self.net.condition(content.x, content.mask, *plain) if guided else cond
 
+            skip, free = self.model.info.train.skip, pace_channels(self.model.info.train)
+            prior, spectral = self.model.skip_prior, self.model.spectral
+
             def x0_of(x_t: torch.Tensor, t: torch.Tensor, condition: torch.Tensor) -> torch.Tensor:
                 out = self.net.denoise(x_t, t, condition, content.mask).to(x_t.dtype)
-                skip = self.model.info.train.skip
-                prior, spectral = self.model.skip_prior, self.model.spectral
-                free = pace_channels(self.model.info.train)
                 return x0_from_output(skip, self.schedule, x_t, t, out, prior, content.x, spectral, content.mask, free)
 
             def model_fn(x_t: torch.Tensor, t: torch.Tensor, *, uncond: bool = False) -> torch.Tensor:

@@ -451,6 +451,7 @@ class UmsdTrainer:
         self.feet, self.ric, self.root_y = blocks["feet"], blocks["ric"], blocks["root_y"]
         self.basis, self.var = data.second_moments()
         self.spectral = data.spectral_prior() if config.skip_time == "spectral" else None
+        self.free = pace_channels(config)  # ``content_pace: false``: channels out of the content-centred prior
 
     # -- sampling --
 
@@ -512,7 +513,7 @@ class UmsdTrainer:
         pred = self.net(x_t, batch.t, batch.content, batch.content_mask, batch.style, batch.style_mask, mask)
         prior = self.skip_prior()
         pred = x0_from_output(
-            cfg.skip, self.schedule, x_t, batch.t, pred, prior, batch.content, self.spectral, mask, pace_channels(cfg)
+            cfg.skip, self.schedule, x_t, batch.t, pred, prior, batch.content, self.spectral, mask, self.free
         )
         pred = pred * keep
         frames = keep.sum(dim=(1, 2)).clamp(min=1)
