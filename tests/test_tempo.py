@@ -14,7 +14,15 @@ import torch
 
 from motionaug.augment.eval.inputs import features_to_joints
 from motionaug.augment.motion.features import extract_features, feature_slices
-from motionaug.augment.motion.tempo import cycle_period, retime, retime_captions, retimed_length, style_tempo
+from motionaug.augment.motion.tempo import (
+    cycle_period,
+    ground_speed,
+    paced,
+    retime,
+    retime_captions,
+    retimed_length,
+    style_tempo,
+)
 from motionaug.augment.synth import render, sample_spec
 from motionaug.augment.synth.styles import NEUTRAL, STYLES
 from motionaug.schemas.captions import Caption
@@ -103,3 +111,24 @@ def test_retime_captions_moves_segments_with_the_clock() -> None:
     assert retime_captions([segment], 1.0, 1.0) == [segment]
     fast = retime_captions([segment], 2.0, duration_s=10.0)
     assert (fast[0].start, fast[0].end) == (0.5, 1.0)
+
+
+@pytest.mark.parametrize("ratio", [0.3, 1.7])
+def test_paced_carries_the_root_further_on_the_same_path_and_the_joints_with_it(ratio: float) -> None:
+    f = features("walk", 5)
+    joints = render(sample_spec(np.random.default_rng(5), "walk", "neutral", seed=5), None).joints
+    root = joints[:, :1].copy()
+    root[..., 1] = 0.0  # the ground track; a faster walk covers more of it, the body's poses and clock unchanged
+    start = root[:1]
+    faster = extract_features(joints + (ratio - 1.0) * (root - start))
+    out = paced(f, ratio)
+    assert out.dtype == np.float32 and out.shape == f.shape
+    assert ground_speed(out) == pytest.approx(ratio * ground_speed(f), rel=1e-5)
+    # the same features as extracting the walk whose root really went that far, joint velocities included; the
+    # foot contacts stay the content's (measured from foot speed, a carried pose would slide off them)
+    rest = [c for c in range(f.shape[1]) if c not in range(*feature_slices(T2M)["feet"].indices(f.shape[1]))]
+    np.testing.assert_allclose(out[:, rest], faster[:, rest], atol=2e-4)
+    np.testing.assert_array_equal(out[:, feature_slices(T2M)["feet"]], f[:, feature_slices(T2M)["feet"]])
+    np.testing.assert_array_equal(paced(f, 1.0), f)
+    with pytest.raises(ValueError, match="ratio must be > 0"):
+        paced(f, 0.0)

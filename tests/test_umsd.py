@@ -31,13 +31,18 @@ from motionaug.augment.methods.umsd.method import (
     CEILING_BANDS,
     UmsdMethod,
     UmsdParams,
+    UmsdStyleModel,
     blend_ramp,
+    masked_smooth,
     nearest_root_motion,
     smoothed,
+    split_guidance,
     window_spans,
 )
+from motionaug.augment.methods.umsd.pace import pace_ratio
 from motionaug.augment.methods.umsd.training import pace_channels, x0_from_output
 from motionaug.augment.motion.spectrum import band_power
+from motionaug.augment.motion.tempo import ground_speed
 from motionaug.augment.synth import generate_corpus, restyled
 from motionaug.models.umsd import UmsdConfig, UmsdNet, pack
 from motionaug.schemas.errors import MotionDataError
@@ -363,6 +368,44 @@ def test_training_is_deterministic_and_loads(clips: list[MotionClip], tmp_path: 
     assert not list(tmp_path.glob(".*.tmp"))  # no temporary folder left behind
 
 
+def test_the_pace_regressor_learns_the_styles_speeds_and_leaves_the_diffusion_weights(
+    clips: list[MotionClip], tmp_path: Path
+) -> None:
+    config = UmsdTrainConfig(**TINY, steps=2, synthetic_pairs=True)
+    plain = load_umsd(train_umsd(clips, tmp_path / "plain", config))
+    folder = train_umsd(clips, tmp_path / "paced", config.model_copy(update={"pace_steps": 300}))
+    model = load_umsd(folder)
+    assert plain.pace is None and model.pace is not None and not model.pace.training
+    for name, tensor in plain.net.state_dict().items():  # the fit runs after, on its own generators
+        torch.testing.assert_close(model.net.state_dict()[name], tensor, rtol=0, atol=0)
+    final = read_artifact(folder).final
+    assert final["pace_final"] < 0.5 * final["pace_first"]
+    assert read_artifact(folder).train.model_dump() != config.model_dump()  # a model of its own key
+    assert "pace_steps" not in config.model_dump()  # older configs keep theirs
+
+    # a slow style's example slows the content's root, a fast one's speeds it; the path keeps its heading
+    neutral = next(c for c in clips if c.style == "neutral" and spec_of(c)["content"] == "walk")
+    norm = model.normalizer
+    content = norm.normalize(neutral.motion).astype(np.float32)
+    ratios = {}
+    for style in ("old", "childlike"):
+        example = restyled(neutral, style)
+        ratios[style] = pace_ratio(model.pace, content, torch.from_numpy(norm.normalize(example.motion)))
+    assert ratios["old"] < 0.8 < 1.25 < ratios["childlike"]
+    params = UmsdParams(pace="example", ddim_steps=2, keep="root")
+    example = torch.from_numpy(norm.normalize(restyled(neutral, "old").motion).astype(np.float32))
+    spec = StyleSpec(name="old", words={"adjective": "old"}, examples=[{"source": "x", "description": "an old walk"}])
+    styled = UmsdStyleModel(spec, model, [example], params)
+    out = styled.transfer([neutral], seed=0)[0]
+    assert isinstance(out, TransferOutput)
+    assert ground_speed(out.motion) == pytest.approx(ratios["old"] * ground_speed(neutral.motion), rel=1e-4)
+    np.testing.assert_array_equal(out.motion[:, [0, 3]], neutral.motion[:, [0, 3]])  # turning and height kept
+
+
+def spec_of(clip: MotionClip) -> dict[str, Any]:
+    return json.loads(clip.meta["spec"])
+
+
 # ---- the method --------------------------------------------------------------------------------------------------
 
 
@@ -407,6 +450,24 @@ def test_the_contrast_reference_is_the_pool_clip_whose_root_moves_like_the_examp
     assert nearest_root_motion(clip(0.0, 0.12, 0.4), pool)[0] == "c_jump"
     np.testing.assert_array_equal(nearest_root_motion(clip(0.0, 0.0, 1.0), pool)[1], pool["a_stand"])
     assert nearest_root_motion(pool["b_walk"], {"z": pool["b_walk"], "y": pool["b_walk"]})[0] == "y"  # ties: id
+
+
+def test_the_step_smoothing_and_split_guidance_see_only_each_rows_own_frames() -> None:
+    x = torch.randn(2, 30, 263)
+    mask = torch.ones(2, 30, dtype=torch.bool)
+    mask[1, 20:] = False
+    signal = [c for c in range(263) if c not in set(feet_channels())]
+    smooth = masked_smooth(x, mask, 1.5, signal)
+    alone = masked_smooth(x[1:, :20], mask[1:, :20], 1.5, signal)
+    torch.testing.assert_close(smooth[1:, :20], alone)  # the padding does not leak in
+    torch.testing.assert_close(smooth[..., feet_channels()], x[..., feet_channels()])
+    assert (smooth[0, 1:-1, signal].diff(dim=0).abs().mean() < 0.5 * x[0, :, signal].diff(dim=0).abs().mean()).item()
+    d = torch.randn(2, 30, 4)
+    d[1, 20:] = 100.0  # padding: never part of a row's mean
+    out = split_guidance(d, mask, 3.0, 0.5)
+    mean = d[1:, :20].mean(dim=1, keepdim=True)
+    torch.testing.assert_close(out[1:, :20], 3.0 * mean + 0.5 * (d[1:, :20] - mean))
+    torch.testing.assert_close(split_guidance(d, mask, 2.0, 2.0)[0], 2.0 * d[0])
 
 
 def test_smoothing_removes_frame_jitter_but_not_the_motion_or_the_contacts() -> None:
@@ -487,6 +548,8 @@ def test_zero_shot_transfer_of_a_held_out_style(corpus: Path, tmp_path: Path) ->
     torch.testing.assert_close(power(capped)[:from_band], power(alone.motion)[:from_band], rtol=1e-3, atol=1e-6)
     np.testing.assert_array_equal(capped[:, feet], alone.motion[:, feet])
     # keep: heading keeps the content's turning and root height, and leaves its ground speed to the network
+    with pytest.raises(MotionDataError, match="pace: example needs a UMSD network trained with pace_steps"):
+        UmsdMethod({**params, "pace": "example"}).load(artifact, trained)
     heading = UmsdMethod({**params, "keep": "heading"}).load(artifact, trained).transfer([content[1]], seed=3)[0]
     np.testing.assert_array_equal(heading.motion[:, [0, 3]], content[1].motion[:, [0, 3]])
     assert not np.allclose(heading.motion[:, [1, 2]], content[1].motion[:, [1, 2]], atol=1e-3)
@@ -509,6 +572,20 @@ def test_zero_shot_transfer_of_a_held_out_style(corpus: Path, tmp_path: Path) ->
         off[scale] = model.transfer([content[1]], seed=3)[0].motion
     assert np.isfinite(off[3.0]).all() and np.abs(off[3.0] - guided[1000]).mean() > 1e-3
     np.testing.assert_allclose(off[1.0], unguided, atol=1e-4)
+    # split guidance: posture and motion at one scale is plain guidance; both at 1 is none
+    for posture, motion, expected in ((3.0, 3.0, guided[1000]), (1.0, 1.0, unguided)):
+        model.params = model.params.model_copy(
+            update={"guidance": "style", "guidance_scale": posture, "guidance_motion_scale": motion}
+        )
+        np.testing.assert_allclose(model.transfer([content[1]], seed=3)[0].motion, expected, atol=1e-4)
+    model.params = model.params.model_copy(update={"guidance_scale": 3.0, "guidance_motion_scale": 1.0})
+    posture_only = model.transfer([content[1]], seed=3)[0].motion
+    assert np.abs(posture_only - guided[1000]).mean() > 1e-3 and np.abs(posture_only - unguided).mean() > 1e-3
+    # smoothing every step's x0 prediction leaves a smoother output, the contacts labels still
+    smooth = UmsdMethod({**params, "x0_smooth": 2.0}).load(artifact, trained).transfer([content[1]], seed=3)[0]
+    moving = [c for c in range(263) if c not in set(feet) | set(kept)]
+    shake = lambda m: np.abs(np.diff(m[:, moving], n=2, axis=0)).mean()  # noqa: E731
+    assert shake(smooth.motion) < 0.7 * shake(unguided)
     # style guidance: stronger than the plain transfer, and a no-op when the example is the content itself
     guided = UmsdMethod({**params, "guidance": "style", "guidance_scale": 2.0})
     stronger = guided.load(artifact, trained).transfer([content[1]], seed=3)[0]

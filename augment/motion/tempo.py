@@ -156,6 +156,31 @@ def retime(features: np.ndarray, tempo: float, max_frames: int, skeleton: Skelet
     return out.astype(np.float32)
 
 
+def ground_speed(features: np.ndarray, skeleton: Skeleton = T2M) -> float:
+    """The root's mean ground speed, metres per frame (the length of ``root_lin_vel`` averaged over frames)."""
+    steps = np.asarray(features, dtype=np.float64)[:, feature_slices(skeleton)["root_lin_vel"]]
+    return float(np.linalg.norm(steps, axis=1).mean())
+
+
+def paced(features: np.ndarray, ratio: float, skeleton: Skeleton = T2M) -> np.ndarray:
+    """The clip with its root carried ``ratio`` times as far each frame, on the same heading: the path keeps its
+    turns, the body its poses and clock, only the ground speed changes. Every joint's velocity (``local_vel``)
+    gains the root's extra ground step, so the features stay consistent (exactly on a straight path; on a curve
+    up to the one-frame heading offset between HumanML3D's two velocity blocks)."""
+    if not ratio > 0:
+        raise ValueError(f"ratio must be > 0, got {ratio}")
+    f = np.array(features, dtype=np.float64)
+    slices = feature_slices(skeleton)
+    step = f[:, slices["root_lin_vel"]]
+    extra = (ratio - 1.0) * step
+    joints_vel = f[:, slices["local_vel"]].reshape(len(f), skeleton.n_joints, 3)
+    joints_vel[:, :, 0] += extra[:, None, 0]
+    joints_vel[:, :, 2] += extra[:, None, 1]
+    f[:, slices["local_vel"]] = joints_vel.reshape(len(f), -1)
+    f[:, slices["root_lin_vel"]] = ratio * step
+    return f.astype(np.float32)
+
+
 def retime_captions(captions: Sequence[Caption], tempo: float, duration_s: float) -> list[Caption]:
     """Captions of a clip played at ``tempo``: a segment's start and end move with the new clock.
 

@@ -51,6 +51,7 @@ from motionaug.augment.methods.common import (
     trajectory_channels,
     write_artifact,
 )
+from motionaug.augment.methods.umsd.pace import pace_ratio
 from motionaug.augment.methods.umsd.training import (
     META_FILE,
     WEIGHTS_FILE,
@@ -64,6 +65,7 @@ from motionaug.augment.methods.umsd.training import (
 from motionaug.augment.motion.features import feature_slices
 from motionaug.augment.motion.kinematics import gaussian_smooth_time
 from motionaug.augment.motion.spectrum import spectral_ceiling
+from motionaug.augment.motion.tempo import paced
 from motionaug.augment.outputs.checksums import RUN_FACTS
 from motionaug.schemas.captions import Caption
 from motionaug.schemas.errors import MotionDataError
@@ -99,6 +101,14 @@ class UmsdParams(BaseModel):
         "extrapolated; none: x0(c, s)",
     )
     guidance_scale: float = Field(1.0, ge=0.0, description="w of style guidance (1: none; > 1: more of the style)")
+    guidance_motion_scale: float | None = Field(
+        None,
+        ge=0.0,
+        description="with style or style-contrast guidance: the scale of the guidance direction's motion (each "
+        "channel less its mean over the clip's frames), guidance_scale then scaling only its mean, the posture: "
+        "x0_u + w mean(d) + w_motion (d - mean(d)), d = x0_c - x0_u. A style's posture extrapolated without "
+        "exaggerating how the limbs move, which is what carries the content (None: w for both)",
+    )
     guidance_below: int = Field(
         NUM_TIMESTEPS,
         ge=1,
@@ -111,6 +121,12 @@ class UmsdParams(BaseModel):
         description="content channels kept by inpainting: root xz + yaw velocities (+ height: root); heading: yaw "
         "velocity + height, the pace left to the network (a network trained with content_pace: false)",
     )
+    pace: Literal["content", "example"] = Field(
+        "content",
+        description="the ground speed the kept root path is walked at: the content's; or example, the content's "
+        "times the factor the network's pace regressor reads off the content and the style example (a network "
+        "trained with pace_steps > 0; augment.methods.umsd.pace), so slow and fast styles change the pace",
+    )
     reference_pool: int = Field(
         64, ge=1, description="content clips the plan hands ``prepare`` to pick style-contrast references from"
     )
@@ -121,6 +137,15 @@ class UmsdParams(BaseModel):
         "foot contacts: removes the frame-to-frame jitter of the network's outputs, which the eye and a content "
         "classifier read as extra motion (0: none)",
     )
+    x0_smooth: float = Field(
+        0.0,
+        ge=0.0,
+        description="sigma (frames) of a Gaussian over time applied to every sampling step's x0 prediction at "
+        "timesteps >= x0_smooth_from, but in the foot contacts: the network's x0 predictions shake a little from "
+        "frame to frame, and each DDIM step feeds that shake back as signal, so it grows over the steps; smoothed "
+        "early, the last steps start from a clean motion and keep their own fast detail (0: none)",
+    )
+    x0_smooth_from: int = Field(0, ge=0, le=NUM_TIMESTEPS, description="lowest timestep x0_smooth applies at")
     ceiling_slack: float = Field(
         0.0,
         ge=0.0,
@@ -311,12 +336,38 @@ class UmsdMethod(LabelledNetworkMethod):
         return UmsdStyleModel(info.style, load_umsd(trained), examples, self.params, references)
 
 
+def split_guidance(direction: torch.Tensor, mask: torch.Tensor, posture: float, motion: float) -> torch.Tensor:
+    """``posture`` times the direction's mean over each row's valid frames (``mask`` (B, T)) + ``motion`` times the
+    rest: (B, T, F)."""
+    weight = mask.to(direction.dtype).unsqueeze(-1)
+    mean = (direction * weight).sum(dim=1, keepdim=True) / weight.sum(dim=1, keepdim=True).clamp(min=1.0)
+    return posture * mean + motion * (direction - mean)
+
+
+def signal_channels(n_feats: int = T2M.feature_dim) -> list[int]:
+    """Every channel but the foot contacts (labels, not signals): what smoothing over time may touch."""
+    feet = set(feet_channels())
+    return [c for c in range(n_feats) if c not in feet]
+
+
+def masked_smooth(x: torch.Tensor, mask: torch.Tensor, sigma: float, channels: Sequence[int]) -> torch.Tensor:
+    """(B, T, F) ``x`` with ``channels`` Gaussian-filtered over time within each row's valid frames (``mask``
+    (B, T), valid first): each row's last valid frame stands in for its padding, as the filter's edge mode would
+    for the clip alone, so a row's result does not depend on its batch mates."""
+    last = (mask.sum(dim=1, keepdim=True) - 1).clamp(min=0)
+    frames = torch.minimum(torch.arange(x.shape[1], device=x.device)[None], last)  # (B, T)
+    cols = list(channels)
+    extended = torch.gather(x[..., cols], 1, frames[..., None].expand(-1, -1, len(cols)))
+    out = x.clone()
+    out[..., cols] = torch.where(mask[..., None], gaussian_smooth_time(extended, sigma, time_dim=1), x[..., cols])
+    return out
+
+
 def smoothed(motion: np.ndarray, sigma: float) -> np.ndarray:
     """``motion`` with every channel but the foot contacts (labels, not signals) Gaussian-filtered over time."""
     if sigma <= 0:
         return motion
-    feet = set(feet_channels())
-    signal = [c for c in range(motion.shape[1]) if c not in feet]
+    signal = signal_channels(motion.shape[1])
     out = motion.copy()
     out[:, signal] = gaussian_smooth_time(torch.from_numpy(motion[:, signal]), sigma, time_dim=0).numpy()
     return out
@@ -383,7 +434,7 @@ def blend_ramp(start: int, end: int, frames: int, overlap: int) -> np.ndarray:
 class _Job:
     index: int
     clip: MotionClip
-    motion: np.ndarray  # validated raw features
+    motion: np.ndarray  # validated raw features, paced (``UmsdStyleModel.paced``)
     captions: list[Caption]
 
 
@@ -409,7 +460,10 @@ class UmsdStyleModel:
         self.params = params
         self.vocab = style_vocab(style.words, style.name)
         self.kept = [] if params.keep == "none" else trajectory_channels(params.keep)
+        if params.pace == "example" and model.pace is None:
+            raise MotionDataError(f"style {style.name!r}", "pace: example needs a UMSD network trained with pace_steps")
         self.schedule = NoiseSchedule.cosine(NUM_TIMESTEPS)  # the training schedule (``skip_x0``)
+        self.signal = signal_channels()
 
     def _job(self, index: int, clip: MotionClip, seed: int) -> _Job:
         source = f"clip {clip.id}"
@@ -420,7 +474,16 @@ class UmsdStyleModel:
             raise MotionDataError(source, UmsdMethod._fps_reason(clip, self.model))
         clip_seed = seed + zlib.crc32(clip.id.encode("utf-8"))
         captions = revised_texts(clip, self.spec.words, self.params.caption_variants, clip_seed, self.vocab)
-        return _Job(index, clip, motion, captions)
+        return _Job(index, clip, self.paced(clip.id, motion), captions)
+
+    def paced(self, clip_id: str, motion: np.ndarray) -> np.ndarray:
+        """The content clip as the transfer keeps it: with ``pace: example`` its root carried at the speed the
+        pace regressor gives for this clip and its style example (``augment.methods.umsd.pace``)."""
+        if self.params.pace == "content" or self.model.pace is None:
+            return motion
+        content = self.model.normalizer.normalize(motion).astype(np.float32)
+        ratio = pace_ratio(self.model.pace, content, self.examples[self.example_index(clip_id)])
+        return paced(motion, ratio)
 
     def example_index(self, clip_id: str) -> int:
         """Which style example a clip is conditioned on: one per clip, chosen by its id (batch-independent)."""
@@ -456,8 +519,9 @@ class UmsdStyleModel:
         ``reference`` (motions, mask): the guidance's stand-in for no style (default: the content itself)."""
         p = self.params
         partial = p.transfer_noise_step < NUM_TIMESTEPS
-        guided = p.guidance != "none" and p.guidance_scale != 1.0
-        off_content = guided and p.guidance == "style-off-content"
+        split = p.guidance_motion_scale is not None and p.guidance != "none"
+        guided = p.guidance != "none" and (p.guidance_scale != 1.0 or split)
+        off_content = guided and (p.guidance == "style-off-content" or split)  # guidance combined here
         plain = (content.x, content.mask) if reference is None else reference
         with bf16_autocast(p.bf16):
             cond = self.net.condition(content.x, content.mask, style, style_mask)
@@ -468,14 +532,20 @@ class UmsdStyleModel:
 
             def x0_of(x_t: torch.Tensor, t: torch.Tensor, condition: torch.Tensor) -> torch.Tensor:
                 out = self.net.denoise(x_t, t, condition, content.mask).to(x_t.dtype)
-                return x0_from_output(skip, self.schedule, x_t, t, out, prior, content.x, spectral, content.mask, free)
+                x0 = x0_from_output(skip, self.schedule, x_t, t, out, prior, content.x, spectral, content.mask, free)
+                if p.x0_smooth > 0 and int(t[0]) >= p.x0_smooth_from:  # linear: commutes with the guidance
+                    x0 = masked_smooth(x0, content.mask, p.x0_smooth, self.signal)
+                return x0
 
             def model_fn(x_t: torch.Tensor, t: torch.Tensor, *, uncond: bool = False) -> torch.Tensor:
                 uncond = uncond and int(t[0]) < p.guidance_below  # above the interval x0_u = x0_c: no guidance
                 x0_c = x0_of(x_t, t, own if uncond else cond)
                 if not off_content or int(t[0]) >= p.guidance_below:
                     return x0_c
-                direction = off_own_motion(x0_c - x0_of(x_t, t, own), content.x, content.mask)
+                x0_u = x0_of(x_t, t, own)
+                if split:
+                    return x0_u + split_guidance(x0_c - x0_u, content.mask, p.guidance_scale, p.guidance_motion_scale)
+                direction = off_own_motion(x0_c - x0_u, content.x, content.mask)
                 return x0_c + (p.guidance_scale - 1.0) * direction
 
             return ddim_sample(

@@ -66,6 +66,7 @@ from motionaug.augment.methods.base import Progress
 from motionaug.augment.methods.common import run_steps, write_model_folder
 from motionaug.augment.motion.features import Normalizer, compute_mean_std, feature_slices, recover_from_ric
 from motionaug.augment.synth import restyled
+from motionaug.models.pace import PaceNet
 from motionaug.models.umsd import UmsdConfig, UmsdNet, frame_aligned
 from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.skeleton import T2M
@@ -77,10 +78,11 @@ TERMS = ("rec", "dcc", "dsc")
 SKIP_KEYS = ("skip.basis", "skip.var")  # the data prior of ``skip_x0``, saved beside the weights
 SPECTRAL_KEYS = ("skip.spectral_bases", "skip.spectral_variances")  # ``skip_time: spectral``'s prior, the same
 SPECTRAL_BANDS = 32  # frequency bands of the spectral prior: windows of 32 frames, bands 1/64 cycle per frame apart
+PACE_KEY_PREFIX = "pace."  # the pace regressor's weights in the model file (``pace_steps``)
 FOOT_JOINTS = (*T2M.feet_left, *T2M.feet_right)  # the order of the four foot-contact channels
 PRIOR_SKIPS = ("covariance", "content")  # the skips whose estimate uses the training frames' second moments
 # left out of config dumps at their defaults
-LATER_FIELDS = ("align_content", "synthetic_pairs", "w_spec", "w_acc", "skip_time", "content_pace")
+LATER_FIELDS = ("align_content", "synthetic_pairs", "w_spec", "w_acc", "skip_time", "content_pace", "pace_steps")
 
 
 class UmsdTrainConfig(BaseModel):
@@ -133,6 +135,13 @@ class UmsdTrainConfig(BaseModel):
         description="skip: content centres the root's ground velocity on the content's too; False: on the data "
         "mean, so the network sets the pace itself from the style example (styles that walk slower or faster; "
         "sample with keep: heading, which keeps the content's turning but not its speed) (not in the paper)",
+    )
+    pace_steps: int = Field(
+        0,
+        ge=0,
+        description="> 0: after the diffusion network, fit the pace regressor (augment.methods.umsd.pace) for this "
+        "many steps, which sampling with pace: example uses to carry the content's root at the style's speed "
+        "(not in the paper); the diffusion weights are the same either way",
     )
     exclude_styles: tuple[str, ...] = Field((), description="styles held out of training (zero-shot, sec. 4.4)")
     seed: int = 0
@@ -607,6 +616,8 @@ def train_umsd(
     pairs). Same clips + config (seed, threads) -> bit-identical weights. ``progress(step, total, metrics)`` is
     called after every step. An existing ``out_dir`` is replaced only once the new folder is complete.
     """
+    from motionaug.augment.methods.umsd.pace import fit_pace  # it builds on this module's data types
+
     config = config or UmsdTrainConfig()
     start = time.perf_counter()
     data = prepare_data(clips, config)
@@ -619,6 +630,7 @@ def train_umsd(
             history = run_steps(
                 lambda: trainer.train_step(trainer.sample()), config.steps, config.log_every, "UMSD", progress
             )
+        pace = fit_pace(data, config) if config.pace_steps else None
     finally:
         torch.set_num_threads(threads)
     artifact = UmsdTrainArtifact(
@@ -627,13 +639,15 @@ def train_umsd(
         normalizer={"mean": data.normalizer.mean.tolist(), "std": data.normalizer.std.tolist()},
         train=config,
         data=data.summary(),
-        final={k: v for k, v in history[-1].items() if k != "step"},
+        final={k: v for k, v in history[-1].items() if k != "step"} | (pace[1] if pace else {}),
         history=history,
         seconds=time.perf_counter() - start,
     )
     tensors = {**trainer.net.state_dict(), **dict(zip(SKIP_KEYS, (trainer.basis, trainer.var)))}
     if trainer.spectral is not None:
         tensors.update(zip(SPECTRAL_KEYS, (trainer.spectral.bases, trainer.spectral.variances)))
+    if pace is not None:
+        tensors.update({PACE_KEY_PREFIX + k: v for k, v in pace[0].state_dict().items()})
     return write_model_folder(Path(out_dir), {WEIGHTS_FILE: tensors}, {META_FILE: artifact.model_dump_json(indent=1)})
 
 
@@ -651,6 +665,7 @@ class UmsdModel:
     info: UmsdTrainArtifact
     skip_prior: tuple[Tensor, Tensor] | tuple[None, None]  # (basis, var) of ``skip_x0``, or (None, None)
     spectral: SpectralPrior | None = None  # ``skip_time: spectral``'s prior
+    pace: PaceNet | None = None  # ``pace_steps``' regressor
 
 
 def load_umsd(path: str | os.PathLike[str]) -> UmsdModel:
@@ -666,10 +681,24 @@ def load_umsd(path: str | os.PathLike[str]) -> UmsdModel:
         bands = tuple(tensors.pop(k, None) for k in SPECTRAL_KEYS)
         if info.train.skip_time == "spectral" and None in bands:
             raise ValueError("no skip.spectral_bases / skip.spectral_variances beside the weights")
+        pace = _pace_net(tensors, info.train.pace_steps > 0)
         net.load_state_dict(tensors, strict=True)
     except Exception as err:  # safetensors, shape or key mismatches: one line, naming the folder
         raise MotionDataError(str(folder), f"unreadable UMSD weights ({str(err).splitlines()[0]})") from None
     normalizer = Normalizer(np.asarray(info.normalizer["mean"]), np.asarray(info.normalizer["std"]))
     skip_prior = prior if info.train.skip in PRIOR_SKIPS else (None, None)
     spectral = SpectralPrior(*bands) if info.train.skip_time == "spectral" else None
-    return UmsdModel(net.eval().requires_grad_(False), normalizer, info, skip_prior, spectral)
+    return UmsdModel(net.eval().requires_grad_(False), normalizer, info, skip_prior, spectral, pace)
+
+
+def _pace_net(tensors: dict[str, Tensor], expected: bool) -> PaceNet | None:
+    """The pace regressor's weights taken out of ``tensors`` (None when it was not trained)."""
+    state = {k[len(PACE_KEY_PREFIX) :]: tensors.pop(k) for k in list(tensors) if k.startswith(PACE_KEY_PREFIX)}
+    if not expected:
+        return None
+    if not state:
+        raise ValueError("no pace.* weights though pace_steps > 0")
+    first = state["mlp.0.weight"]
+    net = PaceNet(first.shape[1] // 4, first.shape[0])
+    net.load_state_dict(state, strict=True)
+    return net.eval().requires_grad_(False)
