@@ -298,6 +298,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--example-content", default="walk", help="content of each style's example clip")
     parser.add_argument("--all-styles", action="store_true", help="with --hold-out: the seen styles too")
     parser.add_argument("--limit", type=int, default=0, help="at most this many neutral clips (0: all)")
+    parser.add_argument("--style", action="append", default=[], help="only these target styles (repeatable)")
     parser.add_argument("--tag", default="", help="name of the result file (default: main or heldout-STYLE)")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--train-only", action="store_true")
@@ -328,6 +329,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         sources = sources[: args.limit]
     every = sorted(s for s in held if s != args.neutral)
     styles = [args.hold_out] if args.hold_out and not args.all_styles else every
+    styles = [s for s in styles if s in args.style] if args.style else styles
     examples = {s: example_for(s, ids["train"], clips, args.example_content) for s in styles}
     load = os.getloadavg()[0]
     outputs, tfacts = transfer(args, model_dir, styles, sources, examples)

@@ -5,9 +5,9 @@
 
 Reads ``WORK/<tag>-<split>.json`` and ``-outputs.npz`` of a bench_umsd_quality.py run made without clean-up
 (``ceiling_slack`` and ``smooth_frames`` 0), applies to every output what ``UmsdStyleModel`` would with
-``ceiling_slack`` SLACK (0: none), ``ceiling_from_hz`` FROM_HZ and ``smooth_frames`` SMOOTH, in that order, restores
-the kept channels, and scores like bench_umsd_quality.py (same evaluators, same held-out clips). A variant with
-SLACK 0 and SMOOTH 0 gives the run's own figures back. Prints one row per variant.
+``ceiling_slack`` SLACK (0: none), ``ceiling_from_hz`` FROM_HZ and ``smooth_frames`` SMOOTH, in that order,
+restores the kept channels as sampled, and scores like bench_umsd_quality.py (same evaluators, same held-out
+clips). A variant with SLACK 0 and SMOOTH 0 gives the run's own figures back. Prints one row per variant.
 """
 
 from __future__ import annotations
@@ -87,7 +87,7 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
         for key in sorted(raw.keys()):
             style, source_id = key.split("/", 1)
             motion = cleaned(raw[key], sources[source_id], examples[style], model, variant)
-            motion[:, kept] = sources[source_id].motion[:, kept]
+            motion[:, kept] = raw[key][:, kept]  # the content's as sampled (with pace: example, paced)
             outputs[style].append(TransferOutput(source_id=source_id, style=style, motion=motion, captions=[]))
         result = score(SimpleNamespace(base=args.base), outputs, held, train_by_style, sources)
         m = result["mean"]
