@@ -38,9 +38,11 @@ from motionaug.augment.methods.umsd.method import (
     smoothed,
     split_guidance,
     window_spans,
+    with_posture,
 )
 from motionaug.augment.methods.umsd.pace import pace_ratio
 from motionaug.augment.methods.umsd.training import pace_channels, x0_from_output
+from motionaug.augment.motion.features import feature_slices
 from motionaug.augment.motion.spectrum import band_power
 from motionaug.augment.motion.tempo import ground_speed
 from motionaug.augment.synth import generate_corpus, restyled
@@ -470,6 +472,21 @@ def test_the_step_smoothing_and_split_guidance_see_only_each_rows_own_frames() -
     torch.testing.assert_close(split_guidance(d, mask, 2.0, 2.0)[0], 2.0 * d[0])
 
 
+def test_the_posture_from_the_examples_moves_the_pose_means_and_keeps_the_motion() -> None:
+    rng = np.random.default_rng(0)
+    output, content = rng.normal(size=(40, 263)).astype(np.float32), rng.normal(size=(50, 263)).astype(np.float32)
+    example, reference = torch.randn(30, 263) + 0.5, torch.randn(35, 263)
+    out = with_posture(output, content, example, reference)
+    slices = feature_slices(T2M)
+    pose = np.r_[slices["ric"], slices["rot"]]
+    expected = content[:, pose].mean(0) + example.numpy()[:, pose].mean(0) - reference.numpy()[:, pose].mean(0)
+    np.testing.assert_allclose(out[:, pose].mean(0), expected, atol=1e-5)
+    moving = out[:, pose] - out[:, pose].mean(0)
+    np.testing.assert_allclose(moving, output[:, pose] - output[:, pose].mean(0), atol=1e-5)
+    others = [c for c in range(263) if c not in set(pose)]
+    np.testing.assert_array_equal(out[:, others], output[:, others])
+
+
 def test_smoothing_removes_frame_jitter_but_not_the_motion_or_the_contacts() -> None:
     frames = np.arange(120)
     motion = np.zeros((120, 263), np.float32)
@@ -596,11 +613,16 @@ def test_zero_shot_transfer_of_a_held_out_style(corpus: Path, tmp_path: Path) ->
     np.testing.assert_allclose(guided.load(itself, trained).transfer([short], seed=3)[0].motion, plain, atol=1e-4)
     # style-contrast guidance: the reference is picked from the pool; the example as its own reference is no guidance
     contrast = UmsdMethod({**params, "guidance": "style-contrast", "guidance_scale": 2.0})
-    with pytest.raises(MotionDataError, match="style-contrast guidance needs usable content clips"):
+    with pytest.raises(MotionDataError, match="need usable content clips to pick from"):
         contrast.prepare(style, [example], trained, [broken], tmp_path / "no-pool")
     with pytest.raises(MotionDataError, match="prepared without references"):
         contrast.load(artifact, trained)
     pooled = contrast.prepare(style, [example], trained, [broken, *content], tmp_path / "pooled")
+    posed = UmsdMethod({**params, "posture": "example"})  # the examples' posture, no guidance
+    with pytest.raises(MotionDataError, match="prepared without references"):
+        posed.load(artifact, trained)
+    posture = posed.load(pooled, trained).transfer([content[1]], seed=3)[0].motion
+    assert np.isfinite(posture).all() and np.abs(posture - alone.motion).mean() > 1e-3
     assert json.loads((pooled / ARTIFACT_JSON).read_text(encoding="utf-8"))["references"][0] in {c.id for c in content}
     contrasted = contrast.load(pooled, trained).transfer([content[1]], seed=3)[0].motion
     assert np.isfinite(contrasted).all() and np.abs(contrasted - alone.motion).mean() > 1e-3

@@ -127,6 +127,13 @@ class UmsdParams(BaseModel):
         "times the factor the network's pace regressor reads off the content and the style example (a network "
         "trained with pace_steps > 0; augment.methods.umsd.pace), so slow and fast styles change the pace",
     )
+    posture: Literal["network", "example"] = Field(
+        "network",
+        description="example: each pose channel's (ric, rot) mean over the output's frames is set to the content's "
+        "plus the style example's less its reference's (the pool clip standing in for the example's content "
+        "performed plainly): the style's posture taken from the examples, the network's outputs keeping their "
+        "motion, so guidance cannot exaggerate a posture into another motion (network: as sampled)",
+    )
     reference_pool: int = Field(
         64, ge=1, description="content clips the plan hands ``prepare`` to pick style-contrast references from"
     )
@@ -155,6 +162,12 @@ class UmsdParams(BaseModel):
         "has, where a Gaussian over time takes both (0: none)",
     )
     ceiling_from_hz: float = Field(2.5, ge=0.0, description="lowest frequency the ceiling applies to, Hz")
+
+    @property
+    def needs_references(self) -> bool:
+        """Whether ``prepare`` picks a plain stand-in for each example's content from the content pool."""
+        return self.guidance == "style-contrast" or self.posture == "example"
+
     window: int | None = Field(
         None,
         ge=0,
@@ -216,7 +229,7 @@ class UmsdMethod(LabelledNetworkMethod):
     @property
     def content_pool(self) -> int:  # type: ignore[override]
         """Content clips ``prepare`` sees: style-contrast guidance picks its references from them."""
-        return self.params.reference_pool if self.params.guidance == "style-contrast" else 0
+        return self.params.reference_pool if self.params.needs_references else 0
 
     # ---- once per run: the network ----------------------------------------------------------------------
 
@@ -256,11 +269,12 @@ class UmsdMethod(LabelledNetworkMethod):
             motions.append(motion)
             weights[f"example.{i}"] = self._stored(motion, model)
         references: list[str] = []
-        if self.params.guidance == "style-contrast":
+        if self.params.needs_references:
             candidates = self._reference_candidates(content, model)
             if not candidates:
                 raise MotionDataError(
-                    f"style {style.name!r}", "style-contrast guidance needs usable content clips to pick from"
+                    f"style {style.name!r}",
+                    "style-contrast guidance and posture: example need usable content clips to pick from",
                 )
             for i, motion in enumerate(motions):
                 reference_id, reference = nearest_root_motion(motion, candidates)
@@ -329,11 +343,24 @@ class UmsdMethod(LabelledNetworkMethod):
         tensors = read_tensors(Path(artifact) / ARTIFACT_WEIGHTS)
         examples = [tensors[f"example.{i}"] for i in range(len(info.examples))]
         references = []
-        if self.params.guidance == "style-contrast":
+        if self.params.needs_references:
             if len(info.references) != len(examples):
-                raise MotionDataError(str(artifact), "prepared without references; style-contrast guidance needs them")
+                raise MotionDataError(
+                    str(artifact), "prepared without references; style-contrast guidance and posture: example need them"
+                )
             references = [tensors[f"reference.{i}"] for i in range(len(examples))]
         return UmsdStyleModel(info.style, load_umsd(trained), examples, self.params, references)
+
+
+def with_posture(output: np.ndarray, content: np.ndarray, example: torch.Tensor, reference: torch.Tensor) -> np.ndarray:
+    """A normalised output (T, F) whose pose channels' means over frames are the content's + the example's - the
+    reference's (``UmsdParams.posture``)."""
+    slices = feature_slices(T2M)
+    pose = np.r_[slices["ric"], slices["rot"]]
+    target = content[:, pose].mean(axis=0) + example.numpy()[:, pose].mean(axis=0) - reference.numpy()[:, pose].mean(0)
+    out = output.copy()
+    out[:, pose] += (target - output[:, pose].mean(axis=0)).astype(np.float32)
+    return out
 
 
 def split_guidance(direction: torch.Tensor, mask: torch.Tensor, posture: float, motion: float) -> torch.Tensor:
@@ -586,7 +613,8 @@ class UmsdStyleModel:
             content = MotionBatch.from_motions([motions[j][a:b] for j, a, b in chunk], None)
             picks = [self.example_index(jobs[j].clip.id) for j, _, _ in chunk]
             style, style_mask = pad_batch([self.examples[i] for i in picks])
-            reference = pad_batch([self.references[i] for i in picks]) if self.references else None
+            contrast = self.references and self.params.guidance == "style-contrast"
+            reference = pad_batch([self.references[i] for i in picks]) if contrast else None
             noise, _ = pad_batch([noises[j][a:b] for j, a, b in chunk])
             out = self.sample(content, style, style_mask, noise, reference).numpy()
             for row, (j, a, b) in enumerate(chunk):
@@ -601,6 +629,10 @@ class UmsdStyleModel:
         results: list[TransferOutput | Reject] = []
         for i, job in enumerate(jobs):
             output = outputs[i]
+            if self.params.posture == "example":
+                picked = self.example_index(job.clip.id)
+                content = norm.normalize(job.motion).astype(np.float32)
+                output = with_posture(output, content, self.examples[picked], self.references[picked])
             if self.params.ceiling_slack > 0:
                 content = norm.normalize(job.motion).astype(np.float32)
                 example = self.examples[self.example_index(job.clip.id)]
