@@ -1,7 +1,7 @@
 """A pace regressor: how much faster (or slower) the content clip's root moves once it takes the example's style.
 
-A style changes the ground speed as much as the posture: a depressed or old walk covers a third of the ground of
-a neutral one, a childlike one more. The diffusion transfer keeps the content's root path by inpainting, and so
+A style changes the ground speed as well as the posture: a depressed or old walk covers less ground than a
+neutral one, a childlike one more. The diffusion transfer keeps the content's root path by inpainting, and so
 its speed; this network tells the sampler by how much to scale it. Input: the content clip and the style example,
 each summarised by the mean and standard deviation over its valid frames of every normalised feature channel
 (which carry the posture, the step amplitude and the speeds). Output: log(pace of the transfer / pace of the

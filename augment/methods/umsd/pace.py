@@ -1,12 +1,11 @@
 """The pace a transfer should walk at: fit ``models.pace.PaceNet`` on the labelled pairs, and apply it.
 
 UMSD's sampler keeps the content's root path by inpainting (the paper's outputs keep the content's trajectory), so
-every output walks at the content's speed, where a depressed walk covers a third of a neutral one's ground and a
-childlike one more. A body stepping short and slow carried at neutral speed reads as another motion (a jump, a
-kick). ``pace_steps`` > 0 fits a small regressor after the diffusion network, on the same pairs as the ``rec`` and
-``dcc`` rows (sec. 3.4): content clip + style example -> log(target's ground speed / content's). At transfer the
-content's root is carried at that many times its speed (``augment.motion.tempo.paced``) before sampling, so the
-style decides the pace in both directions, from the example alone. Not in the paper.
+every output walks at the content's speed, where a depressed walk covers less ground than a neutral one and a
+childlike one more. ``pace_steps`` > 0 fits a small regressor after the diffusion network, on the same pairs as
+the ``rec`` and ``dcc`` rows (sec. 3.4): content clip + style example -> log(target's ground speed / content's).
+At transfer the content's root is carried at that many times its speed (``augment.motion.tempo.paced``) before
+sampling, so the style decides the pace in both directions, from the example alone. Not in the paper.
 """
 
 from __future__ import annotations
