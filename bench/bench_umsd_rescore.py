@@ -1,13 +1,17 @@
-"""Clean-ups of UMSD's outputs after sampling, scored without sampling again: the spectral ceiling and smoothing.
+"""Clean-ups of UMSD's outputs after sampling, scored without sampling again: the examples' amplitude and
+posture, the spectral ceiling and smoothing.
 
   python bench/bench_umsd_rescore.py --corpus CORPUS --base BASE --work WORK --tag TAG --split val
-      --variant SLACK:FROM_HZ:SMOOTH [--variant ...]
+      --variant SLACK:FROM_HZ:SMOOTH[:POSTURE[:AMPLITUDE]] [--variant ...]
 
 Reads ``WORK/<tag>-<split>.json`` and ``-outputs.npz`` of a bench_umsd_quality.py run made without clean-up
-(``ceiling_slack`` and ``smooth_frames`` 0), applies to every output what ``UmsdStyleModel`` would with
-``ceiling_slack`` SLACK (0: none), ``ceiling_from_hz`` FROM_HZ and ``smooth_frames`` SMOOTH, in that order,
-restores the kept channels as sampled, and scores like bench_umsd_quality.py (same evaluators, same held-out
-clips). A variant with SLACK 0 and SMOOTH 0 gives the run's own figures back. Prints one row per variant.
+(``ceiling_slack``, ``smooth_frames`` 0, ``posture`` and ``amplitude`` network), applies to every output what
+``UmsdStyleModel`` would with ``amplitude`` AMPLITUDE (``network`` or ``example``, default network),
+``posture`` POSTURE (the same), ``ceiling_slack`` SLACK (0: none), ``ceiling_from_hz`` FROM_HZ and
+``smooth_frames`` SMOOTH, in that order, restores the kept channels as sampled, and scores like
+bench_umsd_quality.py (same evaluators, same held-out clips). The examples' references are those the run's
+``prepare`` picked (a run with style-contrast guidance, posture or amplitude: example). A variant ``0:0:0`` gives
+the run's own figures back. Prints one row per variant.
 """
 
 from __future__ import annotations
@@ -30,27 +34,47 @@ from motionaug.augment.corpus import MotionClip  # noqa: E402
 from motionaug.augment.methods.base import TransferOutput  # noqa: E402
 from motionaug.augment.methods.common import trajectory_channels  # noqa: E402
 from motionaug.augment.methods.umsd import load_umsd  # noqa: E402
-from motionaug.augment.methods.umsd.method import UmsdMethod, UmsdParams, smoothed, under_ceiling  # noqa: E402
+from motionaug.augment.methods.umsd.method import (  # noqa: E402
+    UmsdMethod,
+    UmsdParams,
+    smoothed,
+    under_ceiling,
+    with_amplitude,
+    with_posture,
+)
+
+Variant = tuple[float, float, float, str, str]
 
 
-def parse_variant(text: str) -> tuple[float, float, float]:
-    slack, from_hz, smooth = (float(v) for v in text.split(":"))
-    return slack, from_hz, smooth
+def parse_variant(text: str) -> Variant:
+    fields = text.split(":")
+    slack, from_hz, smooth = (float(v) for v in fields[:3])
+    posture, amplitude = (fields[3:] + ["network", "network"])[:2]
+    if posture not in ("network", "example") or amplitude not in ("network", "example", "ratio"):
+        raise SystemExit(f"variant {text}: posture is network or example, amplitude network, example or ratio")
+    return slack, from_hz, smooth, posture, amplitude
 
 
 def cleaned(
-    motion: np.ndarray, source: MotionClip, example: torch.Tensor, model: Any, variant: tuple[float, float, float]
+    motion: np.ndarray, source: MotionClip, pair: tuple[torch.Tensor, torch.Tensor | None], model: Any, variant: Variant
 ) -> np.ndarray:
-    """``motion`` (raw features) as ``UmsdStyleModel._transfer_batch`` would leave it under ``variant``."""
-    slack, from_hz, smooth = variant
-    out = np.asarray(motion, dtype=np.float32)
+    """``motion`` (raw features) as ``UmsdStyleModel._transfer_batch`` would leave it under ``variant``; ``pair``:
+    the stored style example and its reference."""
+    slack, from_hz, smooth, posture, amplitude = variant
+    example, reference = pair
+    norm = model.normalizer
+    out = norm.normalize(np.asarray(motion, dtype=np.float32)).astype(np.float32)
+    content = norm.normalize(source.motion).astype(np.float32)
+    if (posture != "network" or amplitude != "network") and reference is None:
+        raise SystemExit("the run picked no references: rescore posture or amplitude: example on a run that did")
+    if amplitude != "network":
+        out = with_amplitude(out, content, example, reference, UmsdParams().amplitude_floor, amplitude == "ratio")
+    if posture == "example":
+        out = with_posture(out, content, example, reference)
     if slack > 0:
-        norm = model.normalizer
         params = UmsdParams(ceiling_slack=slack, ceiling_from_hz=from_hz)
-        content = norm.normalize(source.motion).astype(np.float32)
-        capped = under_ceiling(norm.normalize(out).astype(np.float32), content, example, model.info.fps, params)
-        out = norm.denormalize(capped).astype(np.float32)
-    return smoothed(out, smooth)
+        out = under_ceiling(out, content, example, model.info.fps, params)
+    return smoothed(norm.denormalize(out).astype(np.float32), smooth)
 
 
 def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
@@ -66,7 +90,15 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
     torch.set_num_threads(args.threads)
     run = json.loads((args.work / f"{args.tag}-{args.split}.json").read_text())
     params = run["transfer"]["params"]
-    if params.get("ceiling_slack", 0) or params.get("smooth_frames", 0):
+    if (
+        params.get("ceiling_slack", 0)
+        or params.get("smooth_frames", 0)
+        or "example"
+        in (
+            params.get("posture", "network"),
+            params.get("amplitude", "network"),
+        )
+    ):
         raise SystemExit(f"{args.tag}: its outputs were already cleaned up; rescore a run without clean-up")
     keep = params.get("keep", "horizontal")
     kept = [] if keep == "none" else trajectory_channels(keep)
@@ -75,24 +107,36 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
     ids = splits(args.corpus)
     held, train_by_style = by_style(clips, ids[args.split]), by_style(clips, ids["train"])
     raw = np.load(args.work / f"{args.tag}-{args.split}-outputs.npz")
-    examples = {s: UmsdMethod._stored(clips[e].motion, model) for s, e in run["examples"].items()}
+    references = run["transfer"].get("references", {})
+    pairs = {
+        s: (
+            UmsdMethod._stored(clips[e].motion, model),
+            UmsdMethod._stored(clips[references[s][0]].motion, model) if references.get(s) else None,
+        )
+        for s, e in run["examples"].items()
+    }
     sources = {k.split("/", 1)[1]: clips[k.split("/", 1)[1]] for k in raw.keys()}
     rows = []
     print(f"{args.tag} ({args.split}), clean-ups of its outputs\n")
-    print("| ceiling slack | from Hz | smooth frames | CRA | SRA (min) | per style CRA / SRA | foot skating |")
-    print("|---:|---:|---:|---:|---|---|---:|")
+    head = "ceiling slack | from Hz | smooth frames | posture | amplitude | CRA | SRA (min) | per style | foot skating"
+    print(f"| {head} |")
+    print("|---:|---:|---:|---|---|---:|---|---|---:|")
     for text in args.variant:
         variant = parse_variant(text)
         outputs: dict[str, list[TransferOutput]] = defaultdict(list)
         for key in sorted(raw.keys()):
             style, source_id = key.split("/", 1)
-            motion = cleaned(raw[key], sources[source_id], examples[style], model, variant)
+            motion = cleaned(raw[key], sources[source_id], pairs[style], model, variant)
             motion[:, kept] = raw[key][:, kept]  # the content's as sampled (with pace: example, paced)
             outputs[style].append(TransferOutput(source_id=source_id, style=style, motion=motion, captions=[]))
         result = score(SimpleNamespace(base=args.base), outputs, held, train_by_style, sources)
         m = result["mean"]
         per = ", ".join(f"{s} {r['cra']:.0%} / {r['sra']:.0%}" for s, r in result["styles"].items())
-        cells = [f"{v:g}" for v in variant] + [f"{m['cra']:.1%}", f"{m['sra']:.1%} ({m['sra_min']:.1%})", per]
+        cells = (
+            [f"{v:g}" for v in variant[:3]]
+            + list(variant[3:])
+            + [f"{m['cra']:.1%}", f"{m['sra']:.1%} ({m['sra_min']:.1%})", per]
+        )
         print("| " + " | ".join(cells) + f" | {m['foot_skating']:.3f} |", flush=True)
         rows.append({"variant": variant, **result})
     return rows

@@ -38,6 +38,7 @@ from motionaug.augment.methods.umsd.method import (
     smoothed,
     split_guidance,
     window_spans,
+    with_amplitude,
     with_posture,
 )
 from motionaug.augment.methods.umsd.pace import pace_ratio
@@ -487,6 +488,25 @@ def test_the_posture_from_the_examples_moves_the_pose_means_and_keeps_the_motion
     np.testing.assert_array_equal(out[:, others], output[:, others])
 
 
+def test_the_amplitude_from_the_examples_scales_the_motion_around_its_mean() -> None:
+    rng = np.random.default_rng(1)
+    output, content = rng.normal(size=(40, 263)).astype(np.float32), rng.normal(size=(50, 263)).astype(np.float32)
+    example, reference = 0.5 * torch.randn(30, 263), torch.randn(35, 263)  # a style half as big as plain
+    out = with_amplitude(output, content, example, reference, 0.25)
+    slices = feature_slices(T2M)
+    cols = np.r_[slices["root_y"], slices["ric"], slices["rot"], slices["local_vel"]]
+    target = content[:, cols].var(0) + example.numpy()[:, cols].var(0) - reference.numpy()[:, cols].var(0)
+    target = np.maximum(target, 0.25**2 * content[:, cols].var(0))
+    np.testing.assert_allclose(out[:, cols].var(0), target, rtol=1e-4)
+    assert out[:, cols].var(0).mean() < 0.5 * output[:, cols].var(0).mean()  # the motion shrank
+    np.testing.assert_allclose(out[:, cols].mean(0), output[:, cols].mean(0), atol=1e-5)  # around its own mean
+    others = [c for c in range(263) if c not in set(cols)]
+    np.testing.assert_array_equal(out[:, others], output[:, others])
+    still = output.copy()
+    still[:, cols] = 1.0 + 1e-3 * rng.normal(size=(40, len(cols)))  # a near-still output is not blown up
+    assert np.abs(with_amplitude(still, content, example, reference, 0.25)[:, cols] - 1.0).max() < 0.05
+
+
 def test_smoothing_removes_frame_jitter_but_not_the_motion_or_the_contacts() -> None:
     frames = np.arange(120)
     motion = np.zeros((120, 263), np.float32)
@@ -624,6 +644,8 @@ def test_zero_shot_transfer_of_a_held_out_style(corpus: Path, tmp_path: Path) ->
     posture = posed.load(pooled, trained).transfer([content[1]], seed=3)[0].motion
     assert np.isfinite(posture).all() and np.abs(posture - alone.motion).mean() > 1e-3
     assert json.loads((pooled / ARTIFACT_JSON).read_text(encoding="utf-8"))["references"][0] in {c.id for c in content}
+    sized = UmsdMethod({**params, "amplitude": "example"}).load(pooled, trained).transfer([content[1]], seed=3)[0]
+    assert np.isfinite(sized.motion).all() and np.abs(sized.motion - alone.motion).mean() > 1e-3
     contrasted = contrast.load(pooled, trained).transfer([content[1]], seed=3)[0].motion
     assert np.isfinite(contrasted).all() and np.abs(contrasted - alone.motion).mean() > 1e-3
     selfref = contrast.prepare(style, [example], trained, [example], tmp_path / "selfref")

@@ -134,6 +134,17 @@ class UmsdParams(BaseModel):
         "performed plainly): the style's posture taken from the examples, the network's outputs keeping their "
         "motion, so guidance cannot exaggerate a posture into another motion (network: as sampled)",
     )
+    amplitude: Literal["network", "example"] = Field(
+        "network",
+        description="example: each pose, root height and joint velocity channel's variance over the output's "
+        "frames is set to the content's plus the style example's less its reference's, floored at "
+        "(amplitude_floor x the content's standard deviation)^2, by scaling the output's deviations from its own "
+        "mean: what posture: example does for the means, for the size of the motion (AdaIN's second moment, "
+        "Huang & Belongie 2017, between the example and its plain stand-in), so a style that shrinks gestures "
+        "shrinks them and one that adds swings grows them, and jitter the content lacks is scaled down with the "
+        "rest (network: as sampled)",
+    )
+    amplitude_floor: float = Field(0.25, ge=0.0, le=1.0, description="least std of a channel, x the content's")
     reference_pool: int = Field(
         64, ge=1, description="content clips the plan hands ``prepare`` to pick style-contrast references from"
     )
@@ -166,7 +177,7 @@ class UmsdParams(BaseModel):
     @property
     def needs_references(self) -> bool:
         """Whether ``prepare`` picks a plain stand-in for each example's content from the content pool."""
-        return self.guidance == "style-contrast" or self.posture == "example"
+        return self.guidance == "style-contrast" or self.posture == "example" or self.amplitude == "example"
 
     window: int | None = Field(
         None,
@@ -274,7 +285,7 @@ class UmsdMethod(LabelledNetworkMethod):
             if not candidates:
                 raise MotionDataError(
                     f"style {style.name!r}",
-                    "style-contrast guidance and posture: example need usable content clips to pick from",
+                    "style-contrast guidance and posture or amplitude: example need usable content clips to pick from",
                 )
             for i, motion in enumerate(motions):
                 reference_id, reference = nearest_root_motion(motion, candidates)
@@ -346,7 +357,8 @@ class UmsdMethod(LabelledNetworkMethod):
         if self.params.needs_references:
             if len(info.references) != len(examples):
                 raise MotionDataError(
-                    str(artifact), "prepared without references; style-contrast guidance and posture: example need them"
+                    str(artifact),
+                    "prepared without references; style-contrast guidance and posture or amplitude: example need them",
                 )
             references = [tensors[f"reference.{i}"] for i in range(len(examples))]
         return UmsdStyleModel(info.style, load_umsd(trained), examples, self.params, references)
@@ -360,6 +372,34 @@ def with_posture(output: np.ndarray, content: np.ndarray, example: torch.Tensor,
     target = content[:, pose].mean(axis=0) + example.numpy()[:, pose].mean(axis=0) - reference.numpy()[:, pose].mean(0)
     out = output.copy()
     out[:, pose] += (target - output[:, pose].mean(axis=0)).astype(np.float32)
+    return out
+
+
+AMPLITUDE_MOST = 4.0  # the largest factor an output channel's deviations are scaled by (near-still channels)
+
+
+def with_amplitude(
+    output: np.ndarray,
+    content: np.ndarray,
+    example: torch.Tensor,
+    reference: torch.Tensor,
+    floor: float,
+    ratio: bool = False,
+) -> np.ndarray:
+    """A normalised output (T, F) whose root height, pose and joint velocity channels vary over frames as much as
+    the content's + the example's - the reference's variance says (``UmsdParams.amplitude``)."""
+    slices = feature_slices(T2M)
+    cols = np.r_[slices["root_y"], slices["ric"], slices["rot"], slices["local_vel"]]
+    if ratio:
+        factor = example.numpy()[:, cols].std(axis=0) / np.maximum(reference.numpy()[:, cols].std(axis=0), 1e-6)
+        target = content[:, cols].var(axis=0) * np.clip(factor, floor, 1.0 / max(floor, 1e-6)) ** 2
+    else:
+        target = content[:, cols].var(0) + example.numpy()[:, cols].var(0) - reference.numpy()[:, cols].var(0)
+    target = np.maximum(target, floor**2 * content[:, cols].var(axis=0))
+    mean = output[:, cols].mean(axis=0)
+    scale = np.sqrt(target) / np.maximum(output[:, cols].std(axis=0), 1e-6)
+    out = output.copy()
+    out[:, cols] = (mean + (output[:, cols] - mean) * np.minimum(scale, AMPLITUDE_MOST)).astype(np.float32)
     return out
 
 
@@ -629,8 +669,12 @@ class UmsdStyleModel:
         results: list[TransferOutput | Reject] = []
         for i, job in enumerate(jobs):
             output = outputs[i]
+            picked = self.example_index(job.clip.id)
+            if self.params.amplitude == "example":
+                content = norm.normalize(job.motion).astype(np.float32)
+                example, reference = self.examples[picked], self.references[picked]
+                output = with_amplitude(output, content, example, reference, self.params.amplitude_floor)
             if self.params.posture == "example":
-                picked = self.example_index(job.clip.id)
                 content = norm.normalize(job.motion).astype(np.float32)
                 output = with_posture(output, content, self.examples[picked], self.references[picked])
             if self.params.ceiling_slack > 0:
