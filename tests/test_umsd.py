@@ -479,7 +479,7 @@ def test_the_posture_from_the_examples_moves_the_pose_means_and_keeps_the_motion
     example, reference = torch.randn(30, 263) + 0.5, torch.randn(35, 263)
     out = with_posture(output, content, example, reference)
     slices = feature_slices(T2M)
-    pose = np.r_[slices["ric"], slices["rot"]]
+    pose = np.r_[slices["root_y"], slices["ric"], slices["rot"]]
     expected = content[:, pose].mean(0) + example.numpy()[:, pose].mean(0) - reference.numpy()[:, pose].mean(0)
     np.testing.assert_allclose(out[:, pose].mean(0), expected, atol=1e-5)
     moving = out[:, pose] - out[:, pose].mean(0)

@@ -129,7 +129,8 @@ class UmsdParams(BaseModel):
     )
     posture: Literal["network", "example"] = Field(
         "network",
-        description="example: each pose channel's (ric, rot) mean over the output's frames is set to the content's "
+        description="example: the root height's and each pose channel's (ric, rot) mean over the output's frames is "
+        "set to the content's "
         "plus the style example's less its reference's (the pool clip standing in for the example's content "
         "performed plainly): the style's posture taken from the examples, the network's outputs keeping their "
         "motion, so guidance cannot exaggerate a posture into another motion (network: as sampled)",
@@ -365,10 +366,10 @@ class UmsdMethod(LabelledNetworkMethod):
 
 
 def with_posture(output: np.ndarray, content: np.ndarray, example: torch.Tensor, reference: torch.Tensor) -> np.ndarray:
-    """A normalised output (T, F) whose pose channels' means over frames are the content's + the example's - the
-    reference's (``UmsdParams.posture``)."""
+    """A normalised output (T, F) whose root height and pose channels' means over frames are the content's + the
+    example's - the reference's (``UmsdParams.posture``; a kept root height is restored afterwards)."""
     slices = feature_slices(T2M)
-    pose = np.r_[slices["ric"], slices["rot"]]
+    pose = np.r_[slices["root_y"], slices["ric"], slices["rot"]]
     target = content[:, pose].mean(axis=0) + example.numpy()[:, pose].mean(axis=0) - reference.numpy()[:, pose].mean(0)
     out = output.copy()
     out[:, pose] += (target - output[:, pose].mean(axis=0)).astype(np.float32)
