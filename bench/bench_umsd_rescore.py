@@ -37,6 +37,7 @@ from motionaug.augment.methods.umsd import load_umsd  # noqa: E402
 from motionaug.augment.methods.umsd.method import (  # noqa: E402
     UmsdMethod,
     UmsdParams,
+    nearest_root_motion,
     smoothed,
     under_ceiling,
     with_amplitude,
@@ -86,6 +87,9 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
     parser.add_argument("--split", choices=("val", "test"), default="val")
     parser.add_argument("--variant", action="append", required=True, help="SLACK:FROM_HZ:SMOOTH (repeatable)")
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument(
+        "--repick", action="store_true", help="pick each example's reference again with the current code"
+    )
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     run = json.loads((args.work / f"{args.tag}-{args.split}.json").read_text())
@@ -108,6 +112,10 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
     held, train_by_style = by_style(clips, ids[args.split]), by_style(clips, ids["train"])
     raw = np.load(args.work / f"{args.tag}-{args.split}-outputs.npz")
     references = run["transfer"].get("references", {})
+    if args.repick:  # the run's pool was its held-out sources (bench_umsd_quality.transfer)
+        pool = {k.split("/", 1)[1]: clips[k.split("/", 1)[1]].motion for k in raw.keys()}
+        references = {s: [nearest_root_motion(clips[e].motion, pool)[0]] for s, e in run["examples"].items()}
+        print("references picked again:", {s: clips[r[0]].content for s, r in references.items()})
     pairs = {
         s: (
             UmsdMethod._stored(clips[e].motion, model),

@@ -441,15 +441,26 @@ def test_windows_cover_long_clips_and_blend_to_one() -> None:
 def test_the_contrast_reference_is_the_pool_clip_whose_root_moves_like_the_example() -> None:
     rng = np.random.default_rng(0)
 
-    def clip(speed: float, bob: float, contact: float) -> np.ndarray:
+    def clip(speed: float, bob: float, contact: float, sideways: float = 0.0, sway: float = 0.0) -> np.ndarray:
         motion = rng.normal(0, 0.01, (60, 263)).astype(np.float32)
-        motion[:, 0:3] = [0.0, speed, 0.0]  # no turning (root_rot_vel), ground speed (root_lin_vel)
+        motion[:, 0:3] = [0.0, sideways, speed]  # no turning (root_rot_vel), velocity in the facing frame (x, z)
+        motion[:, 2] += sway * np.sin(np.linspace(0, 12, 60))  # back and forth on the spot
         motion[:, 3] = 0.95 + bob * np.sin(np.linspace(0, 12, 60))  # root_y
         motion[:, 259:] = float(contact)
         return motion
 
-    pool = {"b_walk": clip(0.05, 0.02, 0.6), "a_stand": clip(0.0, 0.0, 1.0), "c_jump": clip(0.0, 0.15, 0.3)}
+    pool = {
+        "b_walk": clip(0.05, 0.02, 0.6),
+        "a_stand": clip(0.0, 0.0, 1.0),
+        "c_jump": clip(0.0, 0.15, 0.3),
+        "d_back": clip(-0.05, 0.02, 0.6),
+        "e_side": clip(0.0, 0.02, 0.6, sideways=0.05),
+        "f_kick": clip(0.002, 0.005, 0.8, sway=0.01),
+    }
     assert nearest_root_motion(clip(0.03, 0.015, 0.7), pool)[0] == "b_walk"  # a slower walk: still the walk
+    assert nearest_root_motion(clip(0.012, 0.02, 0.85), pool)[0] == "b_walk"  # 4x slower, feet down longer
+    assert nearest_root_motion(clip(-0.03, 0.02, 0.6), pool)[0] == "d_back"  # same speed, other direction
+    assert nearest_root_motion(clip(0.0, 0.02, 0.6, sideways=-0.04), pool)[0] == "e_side"
     assert nearest_root_motion(clip(0.0, 0.12, 0.4), pool)[0] == "c_jump"
     np.testing.assert_array_equal(nearest_root_motion(clip(0.0, 0.0, 1.0), pool)[1], pool["a_stand"])
     assert nearest_root_motion(pool["b_walk"], {"z": pool["b_walk"], "y": pool["b_walk"]})[0] == "y"  # ties: id

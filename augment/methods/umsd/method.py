@@ -455,12 +455,17 @@ def under_ceiling(
 
 
 def root_motion(motion: np.ndarray) -> np.ndarray:
-    """What a clip's root does, a summary that style changes little: mean ground speed and turning rate (per
-    frame), the spread of the root height and the share of frames with a foot on the ground."""
+    """What a clip's root does, a summary that style changes little: the log of its mean ground speed (slow and
+    fast styles move a walk's speed by a factor, far less than a walk differs from standing), the direction of its
+    mean velocity in the facing frame (sideways, either side, and forwards: a walk is not a sidestep or a backward
+    walk), its turning rate (per frame) and the spread of the root height. Not the share of frames with a foot
+    down: slow styles raise it as much as standing still does."""
     slices = feature_slices(T2M)
-    speed = np.linalg.norm(motion[:, slices["root_lin_vel"]], axis=1).mean()
+    velocity = motion[:, slices["root_lin_vel"]]
+    speed = np.linalg.norm(velocity, axis=1).mean()
+    sideways, forwards = velocity.mean(axis=0) / (speed + 1e-6)
     turning = np.abs(motion[:, slices["root_rot_vel"]]).mean()
-    return np.array([speed, turning, motion[:, slices["root_y"]].std(), motion[:, slices["feet"]].mean()])
+    return np.array([np.log(speed + 1e-3), abs(sideways), forwards, turning, motion[:, slices["root_y"]].std()])
 
 
 def nearest_root_motion(example: np.ndarray, candidates: dict[str, np.ndarray]) -> tuple[str, np.ndarray]:
