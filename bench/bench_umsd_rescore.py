@@ -38,10 +38,8 @@ from motionaug.augment.methods.umsd.method import (  # noqa: E402
     UmsdMethod,
     UmsdParams,
     nearest_root_motion,
+    shaped,
     smoothed,
-    under_ceiling,
-    with_amplitude,
-    with_posture,
 )
 
 Variant = tuple[float, float, float, str, str]
@@ -51,8 +49,8 @@ def parse_variant(text: str) -> Variant:
     fields = text.split(":")
     slack, from_hz, smooth = (float(v) for v in fields[:3])
     posture, amplitude = (fields[3:] + ["network", "network"])[:2]
-    if posture not in ("network", "example") or amplitude not in ("network", "example", "ratio"):
-        raise SystemExit(f"variant {text}: posture is network or example, amplitude network, example or ratio")
+    if {posture, amplitude} - {"network", "example"}:
+        raise SystemExit(f"variant {text}: posture and amplitude are network or example")
     return slack, from_hz, smooth, posture, amplitude
 
 
@@ -62,19 +60,13 @@ def cleaned(
     """``motion`` (raw features) as ``UmsdStyleModel._transfer_batch`` would leave it under ``variant``; ``pair``:
     the stored style example and its reference."""
     slack, from_hz, smooth, posture, amplitude = variant
-    example, reference = pair
+    params = UmsdParams(ceiling_slack=slack, ceiling_from_hz=from_hz, posture=posture, amplitude=amplitude)
+    if params.needs_references and pair[1] is None:
+        raise SystemExit("the run picked no references: rescore posture or amplitude: example on a run that did")
     norm = model.normalizer
     out = norm.normalize(np.asarray(motion, dtype=np.float32)).astype(np.float32)
     content = norm.normalize(source.motion).astype(np.float32)
-    if (posture != "network" or amplitude != "network") and reference is None:
-        raise SystemExit("the run picked no references: rescore posture or amplitude: example on a run that did")
-    if amplitude != "network":
-        out = with_amplitude(out, content, example, reference, UmsdParams().amplitude_floor, amplitude == "ratio")
-    if posture == "example":
-        out = with_posture(out, content, example, reference)
-    if slack > 0:
-        params = UmsdParams(ceiling_slack=slack, ceiling_from_hz=from_hz)
-        out = under_ceiling(out, content, example, model.info.fps, params)
+    out = shaped(out, content, pair[0], pair[1], model.info.fps, params)
     return smoothed(norm.denormalize(out).astype(np.float32), smooth)
 
 

@@ -380,28 +380,41 @@ AMPLITUDE_MOST = 4.0  # the largest factor an output channel's deviations are sc
 
 
 def with_amplitude(
-    output: np.ndarray,
-    content: np.ndarray,
-    example: torch.Tensor,
-    reference: torch.Tensor,
-    floor: float,
-    ratio: bool = False,
+    output: np.ndarray, content: np.ndarray, example: torch.Tensor, reference: torch.Tensor, floor: float
 ) -> np.ndarray:
     """A normalised output (T, F) whose root height, pose and joint velocity channels vary over frames as much as
     the content's + the example's - the reference's variance says (``UmsdParams.amplitude``)."""
     slices = feature_slices(T2M)
     cols = np.r_[slices["root_y"], slices["ric"], slices["rot"], slices["local_vel"]]
-    if ratio:
-        factor = example.numpy()[:, cols].std(axis=0) / np.maximum(reference.numpy()[:, cols].std(axis=0), 1e-6)
-        target = content[:, cols].var(axis=0) * np.clip(factor, floor, 1.0 / max(floor, 1e-6)) ** 2
-    else:
-        target = content[:, cols].var(0) + example.numpy()[:, cols].var(0) - reference.numpy()[:, cols].var(0)
+    target = content[:, cols].var(0) + example.numpy()[:, cols].var(0) - reference.numpy()[:, cols].var(0)
     target = np.maximum(target, floor**2 * content[:, cols].var(axis=0))
     mean = output[:, cols].mean(axis=0)
     scale = np.sqrt(target) / np.maximum(output[:, cols].std(axis=0), 1e-6)
     out = output.copy()
     out[:, cols] = (mean + (output[:, cols] - mean) * np.minimum(scale, AMPLITUDE_MOST)).astype(np.float32)
     return out
+
+
+def shaped(
+    output: np.ndarray,
+    content: np.ndarray,
+    example: torch.Tensor,
+    reference: torch.Tensor | None,
+    fps: float,
+    params: UmsdParams,
+) -> np.ndarray:
+    """A sampled normalised output (T, F) after what ``params`` take from the examples (amplitude, then posture:
+    ``reference`` is needed for either) and the spectral ceiling; smoothing, in raw units, comes after."""
+    if params.amplitude == "example" or params.posture == "example":
+        if reference is None:
+            raise ValueError("posture or amplitude: example needs the example's reference")
+        if params.amplitude == "example":
+            output = with_amplitude(output, content, example, reference, params.amplitude_floor)
+        if params.posture == "example":
+            output = with_posture(output, content, example, reference)
+    if params.ceiling_slack > 0:
+        output = under_ceiling(output, content, example, fps, params)
+    return output
 
 
 def split_guidance(direction: torch.Tensor, mask: torch.Tensor, posture: float, motion: float) -> torch.Tensor:
@@ -674,19 +687,10 @@ class UmsdStyleModel:
         outputs = self._sample_windows(jobs, seed)
         results: list[TransferOutput | Reject] = []
         for i, job in enumerate(jobs):
-            output = outputs[i]
             picked = self.example_index(job.clip.id)
-            if self.params.amplitude == "example":
-                content = norm.normalize(job.motion).astype(np.float32)
-                example, reference = self.examples[picked], self.references[picked]
-                output = with_amplitude(output, content, example, reference, self.params.amplitude_floor)
-            if self.params.posture == "example":
-                content = norm.normalize(job.motion).astype(np.float32)
-                output = with_posture(output, content, self.examples[picked], self.references[picked])
-            if self.params.ceiling_slack > 0:
-                content = norm.normalize(job.motion).astype(np.float32)
-                example = self.examples[self.example_index(job.clip.id)]
-                output = under_ceiling(output, content, example, self.model.info.fps, self.params)
+            content = norm.normalize(job.motion).astype(np.float32)
+            reference = self.references[picked] if self.references else None
+            output = shaped(outputs[i], content, self.examples[picked], reference, self.model.info.fps, self.params)
             motion = smoothed(norm.denormalize(output).astype(np.float32), self.params.smooth_frames)
             motion[:, self.kept] = job.motion[:, self.kept]  # exactly the content's, not up to rounding
             if not np.isfinite(motion).all():
