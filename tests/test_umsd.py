@@ -537,7 +537,8 @@ def test_smoothing_removes_frame_jitter_but_not_the_motion_or_the_contacts() -> 
 def test_zero_shot_transfer_of_a_held_out_style(corpus: Path, tmp_path: Path) -> None:
     params = copy.deepcopy(UmsdMethod.smoke_params)
     params["train"] = {**params["train"], "exclude_styles": [HELD_OUT]}
-    params.update(guidance="none", guidance_scale=1.0)  # each guidance is checked against the plain transfer
+    # each guidance and each moment taken from the examples is checked against the plain transfer
+    params.update(guidance="none", guidance_scale=1.0, posture="network", amplitude="network")
     method = UmsdMethod(params)
     spec = TrainingSpec(size="tiny", options={}, seed=0)
     trained = method.train(corpus, tmp_path / "trained", spec)

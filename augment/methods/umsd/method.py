@@ -236,6 +236,8 @@ class UmsdMethod(LabelledNetworkMethod):
         "batch_size": 4,
         "guidance": "style-contrast",  # the plan's pool reaches ``prepare`` and the references the sampler
         "guidance_scale": 2.0,
+        "posture": "example",  # and the examples' moments against the references
+        "amplitude": "example",
     }
 
     @property
