@@ -77,7 +77,8 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
     parser.add_argument("--work", type=Path, required=True)
     parser.add_argument("--tag", required=True)
     parser.add_argument("--split", choices=("val", "test"), default="val")
-    parser.add_argument("--variant", action="append", required=True, help="SLACK:FROM_HZ:SMOOTH (repeatable)")
+    variant_help = "SLACK:FROM_HZ:SMOOTH[:POSTURE[:AMPLITUDE]] (repeatable)"
+    parser.add_argument("--variant", action="append", required=True, help=variant_help)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument(
         "--repick", action="store_true", help="pick each example's reference again with the current code"
@@ -86,15 +87,8 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
     torch.set_num_threads(args.threads)
     run = json.loads((args.work / f"{args.tag}-{args.split}.json").read_text())
     params = run["transfer"]["params"]
-    if (
-        params.get("ceiling_slack", 0)
-        or params.get("smooth_frames", 0)
-        or "example"
-        in (
-            params.get("posture", "network"),
-            params.get("amplitude", "network"),
-        )
-    ):
+    moments = (params.get("posture", "network"), params.get("amplitude", "network"))
+    if params.get("ceiling_slack", 0) or params.get("smooth_frames", 0) or "example" in moments:
         raise SystemExit(f"{args.tag}: its outputs were already cleaned up; rescore a run without clean-up")
     keep = params.get("keep", "horizontal")
     kept = [] if keep == "none" else trajectory_channels(keep)
@@ -103,9 +97,10 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
     ids = splits(args.corpus)
     held, train_by_style = by_style(clips, ids[args.split]), by_style(clips, ids["train"])
     raw = np.load(args.work / f"{args.tag}-{args.split}-outputs.npz")
+    sources = {k.split("/", 1)[1]: clips[k.split("/", 1)[1]] for k in raw.keys()}
     references = run["transfer"].get("references", {})
     if args.repick:  # the run's pool was its held-out sources (bench_umsd_quality.transfer)
-        pool = {k.split("/", 1)[1]: clips[k.split("/", 1)[1]].motion for k in raw.keys()}
+        pool = {i: clip.motion for i, clip in sources.items()}
         references = {s: [nearest_root_motion(clips[e].motion, pool)[0]] for s, e in run["examples"].items()}
         print("references picked again:", {s: clips[r[0]].content for s, r in references.items()})
     pairs = {
@@ -115,7 +110,6 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
         )
         for s, e in run["examples"].items()
     }
-    sources = {k.split("/", 1)[1]: clips[k.split("/", 1)[1]] for k in raw.keys()}
     rows = []
     print(f"{args.tag} ({args.split}), clean-ups of its outputs\n")
     head = "ceiling slack | from Hz | smooth frames | posture | amplitude | CRA | SRA (min) | per style | foot skating"

@@ -130,10 +130,9 @@ class UmsdParams(BaseModel):
     posture: Literal["network", "example"] = Field(
         "network",
         description="example: the root height's and each pose channel's (ric, rot) mean over the output's frames is "
-        "set to the content's "
-        "plus the style example's less its reference's (the pool clip standing in for the example's content "
-        "performed plainly): the style's posture taken from the examples, the network's outputs keeping their "
-        "motion, so guidance cannot exaggerate a posture into another motion (network: as sampled)",
+        "set to the content's plus the style example's less its reference's (the pool clip standing in for the "
+        "example's content performed plainly): the style's posture taken from the examples, the network's outputs "
+        "keeping their motion, so guidance cannot exaggerate a posture into another motion (network: as sampled)",
     )
     amplitude: Literal["network", "example"] = Field(
         "network",
