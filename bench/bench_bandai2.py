@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import re
 import sys
 from collections import defaultdict
@@ -40,52 +39,20 @@ import torch
 
 from motionaug.augment.corpus import Corpus
 from motionaug.augment.eval.evaluation import classify, load_classifiers
-from motionaug.augment.eval.inputs import features_to_joints
-from motionaug.augment.eval.metrics import foot_skating_ratio, frechet_distance
-from motionaug.augment.methods.base import TransferOutput
+from motionaug.augment.metrics import (
+    matched_fmd,
+    mean_foot_skating,
+    wilson_interval,
+)
+from motionaug.augment.motion.features import features_to_joints
 from motionaug.augment.motion.foot_lock import lock_feet
 from motionaug.augment.outputs.run_dir import RunDir
-from motionaug.augment.outputs.shards import iter_shard_rows, row_motion
+from motionaug.augment.outputs.shards import TransferOutput, iter_shard_rows, row_motion
 from motionaug.schemas.run_config import load_run_config
 from motionaug.schemas.skeleton import T2M
 
 REPO = Path(__file__).resolve().parents[1]
 NEUTRAL = "normal"
-
-
-def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    """95% Wilson score interval of a proportion (stays inside [0, 1] at 0% and 100%)."""
-    if n == 0:
-        return (math.nan, math.nan)
-    p = successes / n
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return (max(0.0, centre - half), min(1.0, centre + half))
-
-
-def joints_of(motion: np.ndarray) -> np.ndarray:
-    return features_to_joints(motion, T2M).numpy()
-
-
-def skating(joints: list[np.ndarray]) -> float:
-    return float(np.mean([foot_skating_ratio(j, T2M, 20.0) for j in joints if len(j) >= 2]))
-
-
-def matched_fmd(a: np.ndarray, b: np.ndarray, seed: int) -> tuple[float, int]:
-    """FMD with both sets drawn to the smaller count (FMD is biased by the sample count)."""
-    n = min(len(a), len(b))
-    rng = np.random.default_rng(seed)
-    a = a[rng.choice(len(a), n, replace=False)]
-    b = b[rng.choice(len(b), n, replace=False)]
-    return frechet_distance(a, b), n
-
-
-def real_takes(corpus: Path, split: str) -> dict[str, list[Any]]:
-    """Clips of ``split`` by style."""
-    out: dict[str, list[Any]] = defaultdict(list)
-    for clip in Corpus(corpus, split=split):
-        out[clip.style].append(clip)
-    return out
 
 
 def take_id(corpus: Path, first: str, take: int) -> str:
@@ -173,7 +140,7 @@ def guided_outputs(run_dir: Path, args: argparse.Namespace, scale: float) -> Out
     run = RunDir(run_dir)
     config = run.config()
     method = create_method(config["method"]["name"], config["method"]["params"])
-    sources = real_takes(args.corpus, args.split)[NEUTRAL]
+    sources = Corpus(args.corpus, split=args.split).by_style()[NEUTRAL]
     trained = Path(config["base_models"]["path"])
     by_style: Outputs = defaultdict(list)
     for style in run.styles():
@@ -193,22 +160,22 @@ def score(
     torch.set_num_threads(args.threads)
     by_style = run_outputs(run_dir) if by_style is None else by_style
     judges = load_classifiers(args.base)
-    held_out = real_takes(args.corpus, args.split)
-    train = real_takes(args.corpus, "train")
+    held_out = Corpus(args.corpus, split=args.split).by_style()
+    train = Corpus(args.corpus, split="train").by_style()
     sources = {c.id: c for c in held_out[NEUTRAL]}
     manifest = RunDir(run_dir).manifest()
     rows: dict[str, dict[str, Any]] = {}
     for style in sorted(by_style):
         outputs = by_style[style]
-        joints = [joints_of(lock_feet(m) if foot_lock else m) for _, m in outputs]
+        joints = [features_to_joints(lock_feet(m) if foot_lock else m) for _, m in outputs]
         content_probs, content_feats = classify(judges.content, joints)
         style_probs, _ = classify(judges.style, joints)
         contents = [sources[s].content for s, _ in outputs]
         cra_hits = int(sum(judges.content_labels[int(i)] == c for i, c in zip(content_probs.argmax(1), contents)))
         sra_hits = int(sum(judges.style_labels[int(i)] == style for i in style_probs.argmax(1)))
-        real = [joints_of(c.motion) for c in held_out[style]]
+        real = [features_to_joints(c.motion) for c in held_out[style]]
         real_feats = classify(judges.content, real)[1]
-        train_feats = classify(judges.content, [joints_of(c.motion) for c in train[style]])[1]
+        train_feats = classify(judges.content, [features_to_joints(c.motion) for c in train[style]])[1]
         fmd, n_fmd = matched_fmd(content_feats, real_feats, args.seed)
         floor, _ = matched_fmd(train_feats, real_feats, args.seed)
         marker = manifest.artifacts.get(style)
@@ -216,15 +183,15 @@ def score(
         rows[style] = {
             "clips": len(outputs),
             "cra": cra_hits / len(outputs),
-            "cra_95": wilson(cra_hits, len(outputs)),
+            "cra_95": wilson_interval(cra_hits, len(outputs)),
             "sra": sra_hits / len(outputs),
-            "sra_95": wilson(sra_hits, len(outputs)),
+            "sra_95": wilson_interval(sra_hits, len(outputs)),
             "predicted_styles": {lab: int(n) for lab, n in sorted(zip(judges.style_labels, counts)) if n},
             "fmd": fmd,
             "fmd_real_train_vs_held_out": floor,
             "fmd_samples": n_fmd,
-            "foot_skating": skating(joints),
-            "foot_skating_real": skating(real),
+            "foot_skating": mean_foot_skating(joints, T2M, 20.0),
+            "foot_skating_real": mean_foot_skating(real, T2M, 20.0),
             "prepare_s": marker.seconds if marker else None,
         }
     stylized = [r for s, r in rows.items() if s != NEUTRAL]

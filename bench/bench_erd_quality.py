@@ -34,14 +34,14 @@ from typing import Any
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from bench_bandai2 import joints_of, matched_fmd, real_takes, skating, wilson  # noqa: E402
-
-from motionaug.augment.eval.evaluation import classify, load_classifiers  # noqa: E402
-from motionaug.augment.methods.common import labelled_training_clips  # noqa: E402
-from motionaug.augment.methods.erd import ErdTrainConfig, load_erd, read_artifact, train_erd, transfer  # noqa: E402
-from motionaug.models.style_erd import NEUTRAL  # noqa: E402
+from motionaug.augment.corpus import Corpus
+from motionaug.augment.eval.evaluation import classify, load_classifiers
+from motionaug.augment.methods.common import labelled_training_clips
+from motionaug.augment.methods.erd import ErdTrainConfig, load_erd, read_artifact, train_erd, transfer
+from motionaug.augment.metrics import matched_fmd, mean_foot_skating, wilson_interval
+from motionaug.augment.motion.features import features_to_joints
+from motionaug.models.style_erd import NEUTRAL
+from motionaug.schemas.skeleton import T2M
 
 
 def train(args: argparse.Namespace, config: ErdTrainConfig) -> tuple[Path, dict[str, Any]]:
@@ -70,14 +70,14 @@ def train(args: argparse.Namespace, config: ErdTrainConfig) -> tuple[Path, dict[
 
 
 def accuracy(hits: int, n: int) -> dict[str, Any]:
-    return {"acc": hits / n if n else float("nan"), "ci95": wilson(hits, n), "n": n}
+    return {"acc": hits / n if n else float("nan"), "ci95": wilson_interval(hits, n), "n": n}
 
 
 def score(args: argparse.Namespace, folder: Path) -> dict[str, Any]:
     net = load_erd(folder)
     judges = load_classifiers(args.evaluators)
-    held_out = real_takes(args.corpus, args.split)
-    train_real = real_takes(args.corpus, "train")
+    held_out = Corpus(args.corpus, split=args.split).by_style()
+    train_real = Corpus(args.corpus, split="train").by_style()
     sources = held_out[args.neutral]
     label = {NEUTRAL: args.neutral}
     rows: dict[str, dict[str, Any]] = {}
@@ -91,20 +91,20 @@ def score(args: argparse.Namespace, folder: Path) -> dict[str, Any]:
         ]
         unknown = [transfer(net, [c.motion[: args.first_frames]], style)[0] for c in sources]
         n_transfers += len(outputs)
-        joints = [joints_of(m) for m in outputs]
+        joints = [features_to_joints(m) for m in outputs]
         content_probs, content_feats = classify(judges.content, joints)
         style_probs, _ = classify(judges.style, joints)
         cra = sum(judges.content_labels[int(i)] == c.content for i, c in zip(content_probs.argmax(1), sources))
         sra = sum(judges.style_labels[int(i)] == name for i in style_probs.argmax(1))
-        real = [joints_of(c.motion) for c in held_out[name]]
+        real = [features_to_joints(c.motion) for c in held_out[name]]
         real_feats = classify(judges.content, real)[1]
-        train_feats = classify(judges.content, [joints_of(c.motion) for c in train_real[name]])[1]
+        train_feats = classify(judges.content, [features_to_joints(c.motion) for c in train_real[name]])[1]
         fmd, n_fmd = matched_fmd(content_feats, real_feats, args.seed)
         floor, _ = matched_fmd(train_feats, real_feats, args.seed)
         first: dict[str, Any] = {}
         heads = [m[: args.first_frames] for m in outputs]
         for what, motions in (("content given", heads), ("unknown content", unknown)):
-            fj = [joints_of(m) for m in motions]
+            fj = [features_to_joints(m) for m in motions]
             sp = classify(judges.style, fj)[0].argmax(1)
             cp = classify(judges.content, fj)[0].argmax(1)
             first[what] = {
@@ -122,8 +122,8 @@ def score(args: argparse.Namespace, folder: Path) -> dict[str, Any]:
             "fmd": fmd,
             "fmd_real_train_vs_held_out": floor,
             "fmd_samples": n_fmd,
-            "foot_skating": skating(joints),
-            "foot_skating_real": skating(real),
+            "foot_skating": mean_foot_skating(joints, T2M, 20.0),
+            "foot_skating_real": mean_foot_skating(real, T2M, 20.0),
             f"first_{args.first_frames}_frames": first,
         }
     seconds = time.perf_counter() - start

@@ -1,7 +1,8 @@
 """Cost of looking at a run: ``evaluate`` (per-clip scores + report), one GIF preview, BVH export.
 
-Builds a ``stats`` run on a synthetic corpus in-process (no Ray) and tiny classifiers, then times each
-step on one CPU thread. Results go to stdout as JSON.
+Renders a synthetic corpus, fits ``tiny`` evaluators for a few epochs on its train split, runs the shipped
+``configs/stats-synthetic.yaml`` on it (embedded Ray), then times each step on one CPU thread. Results go to
+stdout as JSON; no accuracy figure comes from this bench.
 
     .venv/bin/python bench/bench_evaluation.py --clips 200
 """
@@ -10,14 +11,21 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from motionaug.augment.eval.evaluation import evaluate_run, preview_transfer, write_scores
+from motionaug.augment.eval.report import write_report
+from motionaug.augment.outputs.bvh_export import export_bvh
+from motionaug.augment.synth import generate_corpus
+from motionaug.augment.training.pretrain import PretrainConfig, fit_evaluators
+from motionaug.schemas.run_config import load_run_config
+from motionaug.workflows.ray_executor import execute_run
+
+REPO = Path(__file__).resolve().parents[1]
 
 
 def timed(fn):  # noqa: ANN001, ANN201 - a tiny local helper
@@ -30,18 +38,17 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--clips", type=int, default=200)
     args = parser.parse_args()
-    torch.set_num_threads(1)
-    from fixtures.evaluation.tiny_run import build_base_models, build_run, make_corpus
-
-    from motionaug.augment.eval.evaluation import evaluate_run, preview_transfer, write_scores
-    from motionaug.augment.eval.report import write_report
-    from motionaug.augment.motion.bvh_export import export_bvh
-
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
-        corpus = make_corpus(root / "corpus", args.clips)
-        config = build_run(corpus, root / "run", unit_size=64)
-        base = build_base_models(corpus, root / "base", epochs=3)
+        corpus = root / "corpus"
+        generate_corpus(corpus, args.clips, seed=0)
+        evaluators = PretrainConfig.for_size("small", threads=1, classifier_epochs=3, classifier_size="tiny")
+        fit_evaluators(corpus, root / "base", evaluators)
+        overrides = [f"corpus.path={corpus}", f"output={root / 'run'}", "compute.unit_size=64"]
+        config = load_run_config(REPO / "configs" / "stats-synthetic.yaml", overrides)
+        execute_run(config)
+        torch.set_num_threads(1)
+        base = root / "base"
         evaluation, t_eval = timed(lambda: evaluate_run(config.output, base_models=base))
         _, t_scores = timed(lambda: write_scores(evaluation))
         _, t_report = timed(lambda: write_report(evaluation))

@@ -45,10 +45,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_bandai2 import joints_of  # noqa: E402
-
-from motionaug.augment.eval.evaluation import classify  # noqa: E402
+from motionaug.augment.eval.evaluation import classify
 from motionaug.augment.eval.expansion import (
     BASE_DIR,
     HELD_OUT_DIR,
@@ -63,7 +60,8 @@ from motionaug.augment.eval.expansion import (
     split_by_style,
     true_stylized,
 )
-from motionaug.augment.training.pretrain import PretrainConfig, ensure_base_models  # noqa: E402
+from motionaug.augment.motion.features import features_to_joints
+from motionaug.augment.training.pretrain import PretrainConfig, ensure_base_models
 
 REPO = Path(__file__).resolve().parents[1]
 BANDAI2 = REPO.parent / "shared" / "data" / "bandai" / "dataset-2"
@@ -306,7 +304,7 @@ def added_recognition(work: Path, judge: Judge, name: str) -> dict[str, Any]:
     corpus, base = work / "corpora" / name, work / "split" / BASE_DIR
     ids = sorted(set((corpus / "train.txt").read_text().split()) - set((base / "train.txt").read_text().split()))
     labels = {row["id"]: row for row in map(json.loads, (corpus / "labels.jsonl").read_text().splitlines())}
-    joints = [joints_of(np.load(corpus / "new_joint_vecs" / f"{i}.npy")) for i in ids]
+    joints = [features_to_joints(np.load(corpus / "new_joint_vecs" / f"{i}.npy")) for i in ids]
     out: dict[str, Any] = {"clips": len(ids)}
     for kind, model, names in (
         ("style", judge.classifiers.style, judge.classifiers.style_labels),

@@ -39,11 +39,12 @@ import torch
 from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.corpus.style_examples import load_style_examples
 from motionaug.augment.eval.evaluation import Classifiers, load_classifiers
-from motionaug.augment.eval.inputs import features_to_joints, pad_batch
-from motionaug.augment.eval.metrics import mpjpe, recognition_accuracy
-from motionaug.augment.methods.base import TransferOutput
 from motionaug.augment.methods.onthefly import OnTheFlyMethod, OnTheFlyModel, longest_frames, parse_params, retimed
+from motionaug.augment.metrics import mpjpe, recognition_accuracy
+from motionaug.augment.motion.batch import pad_batch
+from motionaug.augment.motion.features import features_to_joints
 from motionaug.augment.outputs.checksums import RUN_FACTS
+from motionaug.augment.outputs.shards import TransferOutput
 from motionaug.augment.training.base_models import BaseModels, BaseModelsInfo, config_dict
 from motionaug.augment.training.evaluators import evaluators_folder
 from motionaug.models.mdm import MDM, MDMConfig

@@ -25,18 +25,7 @@ import torch
 
 from motionaug.augment.synth import generate_corpus
 from motionaug.augment.training.pretrain import PretrainConfig, fit_evaluators, pretrain
-
-
-def parse_sets(items: list[str]) -> dict[str, object]:
-    """``key=value`` overrides of PretrainConfig; values are parsed as JSON when they can be."""
-    out: dict[str, object] = {}
-    for item in items:
-        key, _, value = item.partition("=")
-        try:
-            out[key] = json.loads(value)
-        except json.JSONDecodeError:
-            out[key] = value
-    return out
+from motionaug.schemas.run_config import apply_overrides
 
 
 class StageTimer:
@@ -68,7 +57,7 @@ def synthetic(args: argparse.Namespace) -> dict[str, object]:
         generate_corpus(corpus, args.clips, seed=0)
     base = work / "base"
     shutil.rmtree(base, ignore_errors=True)
-    config = PretrainConfig.for_size(args.size, threads=args.threads, **parse_sets(args.set))
+    config = PretrainConfig.for_size(args.size, threads=args.threads, **apply_overrides({}, args.set))
     timer = StageTimer()
     start = time.perf_counter()
     info = pretrain(corpus, base, config, progress=timer)
@@ -84,7 +73,7 @@ def synthetic(args: argparse.Namespace) -> dict[str, object]:
 
 
 def bandai(args: argparse.Namespace) -> dict[str, object]:
-    config = PretrainConfig(threads=args.threads, **parse_sets(args.set))
+    config = PretrainConfig(threads=args.threads, **apply_overrides({}, args.set))
     start = time.perf_counter()
     metrics = fit_evaluators(args.corpus, args.work, config)
     return {"metrics": metrics, "seconds": round(time.perf_counter() - start, 1), "load": os.getloadavg()}

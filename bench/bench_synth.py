@@ -12,17 +12,16 @@ The corpus must be learnable: style >= 0.90 and content >= 0.95 (exit code 1 oth
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 import torch
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+from motionaug.augment.synth.corpus import generate_corpus, linear_probe_predict, pooled_descriptor, read_labels
 
-from motionaug.augment.synth.corpus import generate_corpus, linear_probe_predict, pooled_descriptor, read_labels  # noqa: E402
+REPO = Path(__file__).resolve().parents[1]
+
 
 STYLE_MIN, CONTENT_MIN = 0.90, 0.95
 

@@ -22,7 +22,7 @@ import torch
 
 from motionaug.augment.eval.evaluation import Classifiers, load_classifiers
 from motionaug.augment.eval.expansion import generate, one_row_per_caption
-from motionaug.augment.eval.metrics import retrieval_r_at_k
+from motionaug.augment.metrics import retrieval_r_at_k
 from motionaug.augment.training.base_models import BaseModels
 from motionaug.augment.training.data import MotionSet, build_motion_set, iter_batches, read_clips, split_ids
 from motionaug.augment.training.evaluators import classifier_accuracy

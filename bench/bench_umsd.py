@@ -36,9 +36,10 @@ import torch
 
 from motionaug.augment.corpus import Corpus, MotionClip
 from motionaug.augment.device import cpu_has_bf16
-from motionaug.augment.methods.base import TrainingSpec, TransferOutput
+from motionaug.augment.methods.base import TrainingSpec
 from motionaug.augment.methods.umsd import load_umsd, read_artifact
 from motionaug.augment.methods.umsd.method import UmsdMethod
+from motionaug.augment.outputs.shards import TransferOutput
 from motionaug.augment.synth import STYLE_WORDS, generate_corpus
 from motionaug.schemas.styles import StyleSpec
 

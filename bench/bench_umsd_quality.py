@@ -45,21 +45,23 @@ from typing import Any
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_bandai2 import joints_of, matched_fmd, skating, wilson  # noqa: E402
-from bench_pretrain import parse_sets
-
-from motionaug.augment.corpus import Corpus, MotionClip  # noqa: E402
-from motionaug.augment.eval.evaluation import classify, load_classifiers  # noqa: E402
-from motionaug.augment.methods.base import ARTIFACT_JSON, TransferOutput  # noqa: E402
-from motionaug.augment.methods.umsd import UmsdTrainConfig, read_artifact, train_umsd  # noqa: E402
-from motionaug.augment.methods.umsd.method import UmsdMethod  # noqa: E402
-from motionaug.augment.motion.features import feature_slices  # noqa: E402
-from motionaug.augment.synth import restyled  # noqa: E402
-from motionaug.augment.training.data import split_ids  # noqa: E402
-from motionaug.schemas.errors import MotionDataError  # noqa: E402
-from motionaug.schemas.skeleton import T2M  # noqa: E402
-from motionaug.schemas.styles import StyleSpec  # noqa: E402
+from motionaug.augment.corpus import Corpus, MotionClip
+from motionaug.augment.eval.evaluation import classify, load_classifiers
+from motionaug.augment.methods.base import ARTIFACT_JSON
+from motionaug.augment.methods.umsd import UmsdTrainConfig, read_artifact, train_umsd
+from motionaug.augment.methods.umsd.method import UmsdMethod
+from motionaug.augment.metrics import matched_fmd, mean_foot_skating, wilson_interval
+from motionaug.augment.motion.features import (
+    feature_slices,
+    features_to_joints,
+)
+from motionaug.augment.outputs.shards import TransferOutput
+from motionaug.augment.synth import restyled
+from motionaug.augment.training.data import split_ids
+from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.run_config import apply_overrides
+from motionaug.schemas.skeleton import T2M
+from motionaug.schemas.styles import StyleSpec
 
 RIC = feature_slices(T2M)["ric"]
 
@@ -104,7 +106,7 @@ def train_config(args: argparse.Namespace) -> UmsdTrainConfig:
     fields = {**PRESETS[args.preset], "steps": args.steps, "threads": args.threads}
     if args.hold_out:
         fields["exclude_styles"] = [args.hold_out]
-    return UmsdTrainConfig(**{**fields, **parse_sets(args.set)})
+    return UmsdTrainConfig(**{**fields, **apply_overrides({}, args.set)})
 
 
 def train(args: argparse.Namespace, clips: dict[str, MotionClip], ids: list[str]) -> Path:
@@ -185,15 +187,15 @@ def score(
     rows: dict[str, Any] = {}
     truths: dict[str, dict[str, np.ndarray]] = {}  # source id -> style -> mean pose of its true render
     for style, outs in sorted(outputs.items()):
-        joints = [joints_of(o.motion) for o in outs]
+        joints = [features_to_joints(o.motion) for o in outs]
         content_probs, content_feats = classify(judges.content, joints)
         style_probs, _ = classify(judges.style, joints)
         contents = [sources[o.source_id].content for o in outs]
         cra_hits = int(sum(judges.content_labels[int(i)] == c for i, c in zip(content_probs.argmax(1), contents)))
         sra_hits = int(sum(judges.style_labels[int(i)] == style for i in style_probs.argmax(1)))
-        real = [joints_of(c.motion) for c in held[style]]
+        real = [features_to_joints(c.motion) for c in held[style]]
         real_feats = classify(judges.content, real)[1]
-        train_feats = classify(judges.content, [joints_of(c.motion) for c in train_by_style[style]])[1]
+        train_feats = classify(judges.content, [features_to_joints(c.motion) for c in train_by_style[style]])[1]
         try:  # too few clips for a 128-d covariance (a --limit smoke): no FMD
             fmd, n_fmd = matched_fmd(content_feats, real_feats, 0)
             floor, _ = matched_fmd(train_feats, real_feats, 0)
@@ -207,23 +209,23 @@ def score(
         rows[style] = {
             "clips": len(outs),
             "cra": cra_hits / len(outs),
-            "cra_95": wilson(cra_hits, len(outs)),
+            "cra_95": wilson_interval(cra_hits, len(outs)),
             "sra": sra_hits / len(outs),
-            "sra_95": wilson(sra_hits, len(outs)),
+            "sra_95": wilson_interval(sra_hits, len(outs)),
             "predicted_styles": {lab: int(n) for lab, n in zip(judges.style_labels, predicted) if n},
             "content_misread": {c: dict(v) for c, v in sorted(misread.items())},
             "fmd": fmd,
             "fmd_real_train_vs_held_out": floor,
             "fmd_samples": n_fmd,
-            "foot_skating": skating(joints),
-            "foot_skating_real": skating(real),
+            "foot_skating": mean_foot_skating(joints, T2M, 20.0),
+            "foot_skating_real": mean_foot_skating(real, T2M, 20.0),
             **true_postures(style, outs, sources, judges.style_labels, truths),
         }
     mean = {k: float(np.mean([r[k] for r in rows.values()])) for k in ("cra", "sra", "fmd", "foot_skating")}
     mean["sra_min"] = float(min(r["sra"] for r in rows.values()))
     hits = {k: sum(round(r[k] * r["clips"]) for r in rows.values()) for k in ("cra", "sra")}
     n = sum(r["clips"] for r in rows.values())
-    mean |= {"cra_95": wilson(hits["cra"], n), "sra_95": wilson(hits["sra"], n), "clips": n}
+    mean |= {"cra_95": wilson_interval(hits["cra"], n), "sra_95": wilson_interval(hits["sra"], n), "clips": n}
     return {"styles": rows, "mean": mean}
 
 

@@ -30,6 +30,7 @@ LINES = [
     "someone sadly walks in a circle.#someone/PRON sadly/ADV walk/VERB in/ADP a/DET circle/NOUN#0.0#0.0",
 ]
 CAPTIONS = [parse_caption_line(line, f"texts/line{i}") for i, line in enumerate(LINES)]
+WORDS = STYLE_WORDS  # the built-in styles' words, neutralised before a style goes in
 STYLES = {
     name: StyleWords(adjective=w.adjective, adverb=w.adverb, phrases=w.phrases) for name, w in STYLE_WORDS.items()
 }
@@ -71,7 +72,7 @@ def all_variants(style: StyleWords) -> list[str | int]:
     ],
 )
 def test_reference_lines(index: int, variant: str, expected: str, token_slice: list[str]) -> None:
-    revised = revise_caption(CAPTIONS[index], PROUD, variant)
+    revised = revise_caption(CAPTIONS[index], PROUD, variant, vocab=WORDS)
     assert revised.text == expected
     assert any(revised.tokens[i : i + len(token_slice)] == token_slice for i in range(len(revised.tokens)))
     assert_valid_and_aligned(revised)
@@ -79,14 +80,18 @@ def test_reference_lines(index: int, variant: str, expected: str, token_slice: l
 
 
 def test_adjective_fixes_the_article_and_styles_without_adverb_use_phrases() -> None:
-    assert revise_caption(CAPTIONS[1], ANGRY, "adjective").text.startswith("an angry person walks")
-    assert revise_caption(CAPTIONS[0], OLD, "adjective").tokens[:3] == ["an/DET", "old/ADJ", "man/NOUN"]
+    assert revise_caption(CAPTIONS[1], ANGRY, "adjective", vocab=WORDS).text.startswith("an angry person walks")
+    assert revise_caption(CAPTIONS[0], OLD, "adjective", vocab=WORDS).tokens[:3] == [
+        "an/DET",
+        "old/ADJ",
+        "man/NOUN",
+    ]
     for caption in CAPTIONS:
-        revised = revise_caption(caption, OLD, "adverb")  # no adverb for 'old': a phrase instead
+        revised = revise_caption(caption, OLD, "adverb", vocab=WORDS)  # no adverb for 'old': a phrase instead
         assert revised.text.rstrip(".").endswith("in an old way"), revised.text
     assert "adverb" not in variant_kinds(OLD)
     with pytest.raises(MotionDataError, match="unknown caption variant 'sideways'"):
-        revise_caption(CAPTIONS[0], PROUD, "sideways")
+        revise_caption(CAPTIONS[0], PROUD, "sideways", vocab=WORDS)
 
 
 @pytest.mark.parametrize("style_name", sorted(STYLES))
@@ -95,12 +100,12 @@ def test_every_variant_valid_styled_distinct_and_idempotent(style_name: str) -> 
     for caption in CAPTIONS:
         texts = set()
         for variant in all_variants(style):
-            revised = revise_caption(caption, style, variant)
+            revised = revise_caption(caption, style, variant, vocab=WORDS)
             assert_valid_and_aligned(revised)
             assert style_word_in(revised.text, style) is not None, revised.text
             assert "sadly" not in revised.text or style.adverb == "sadly"
-            assert revise_caption(revised, style, variant) == revised  # no doubled style words
-            assert neutralise_caption(revised) == neutralise_caption(caption)
+            assert revise_caption(revised, style, variant, vocab=WORDS) == revised  # no doubled style words
+            assert neutralise_caption(revised, vocab=WORDS) == neutralise_caption(caption, vocab=WORDS)
             texts.add(revised.text)
         # 'someone ...' has no person noun, so its adjective variant falls back to the adverb (or first phrase) one
         expected = len(all_variants(style)) - (caption is CAPTIONS[3])
@@ -109,42 +114,42 @@ def test_every_variant_valid_styled_distinct_and_idempotent(style_name: str) -> 
 
 def test_restyling_replaces_the_previous_style() -> None:
     for variant in all_variants(PROUD):
-        proud = revise_caption(CAPTIONS[1], PROUD, variant)
+        proud = revise_caption(CAPTIONS[1], PROUD, variant, vocab=WORDS)
         for angry_variant in all_variants(ANGRY):
-            angry = revise_caption(proud, ANGRY, angry_variant)
+            angry = revise_caption(proud, ANGRY, angry_variant, vocab=WORDS)
             assert style_word_in(angry.text, PROUD) is None, angry.text
-            assert angry == revise_caption(CAPTIONS[1], ANGRY, angry_variant)
+            assert angry == revise_caption(CAPTIONS[1], ANGRY, angry_variant, vocab=WORDS)
 
 
 def test_neutralise_and_has_style_words() -> None:
     sad = CAPTIONS[3]
-    assert has_style_words(sad) and has_style_words(sad.text)
-    neutral = neutralise_caption(sad)
+    assert has_style_words(sad, vocab=WORDS) and has_style_words(sad.text, vocab=WORDS)
+    neutral = neutralise_caption(sad, vocab=WORDS)
     assert neutral.text == "someone walks in a circle."
     assert neutral.tokens == ["someone/PRON", "walk/VERB", "in/ADP", "a/DET", "circle/NOUN"]
-    assert not has_style_words(neutral)
-    assert not any(has_style_words(c) for c in CAPTIONS[:3])
+    assert not has_style_words(neutral, vocab=WORDS)
+    assert not any(has_style_words(c, vocab=WORDS) for c in CAPTIONS[:3])
     both = Caption(text="An old man walks proudly and angrily, like a thief.")
-    assert neutralise_caption(both).text == "A man walks."
-    assert_valid_and_aligned(neutralise_caption(both))
+    assert neutralise_caption(both, vocab=WORDS).text == "A man walks."
+    assert_valid_and_aligned(neutralise_caption(both, vocab=WORDS))
     strut = Caption(text="a man is strutting", tokens=["a/DET", "man/NOUN", "is/AUX", "strut/VERB"])
-    assert not has_style_words(strut)  # the verb is content, not the 'strutting' adjective
+    assert not has_style_words(strut, vocab=WORDS)  # the verb is content, not the 'strutting' adjective
     custom = {"bouncy": StyleWords(adjective="bouncy", adverb="bouncily")}
     assert neutralise_caption(Caption(text="a person hops bouncily"), custom).text == "a person hops"
     with pytest.raises(MotionDataError, match="no words left"):
-        neutralise_caption(Caption(text="proudly."))
+        neutralise_caption(Caption(text="proudly."), vocab=WORDS)
 
 
 def test_captions_without_tokens_are_tagged_by_rule() -> None:
     plain = Caption(text="A man walks forward, then sits down.")
-    revised = revise_caption(plain, PROUD, "adverb")
+    revised = revise_caption(plain, PROUD, "adverb", vocab=WORDS)
     assert revised.text == "A man walks proudly forward, then sits proudly down."
     assert revised.tokens[:4] == ["a/DET", "man/NOUN", "walk/VERB", "proudly/ADV"]
     assert "sit/VERB" in revised.tokens
     assert_valid_and_aligned(revised)
-    unknown = revise_caption(Caption(text="a person pirouettes twice"), PROUD, 0)
+    unknown = revise_caption(Caption(text="a person pirouettes twice"), PROUD, 0, vocab=WORDS)
     assert unknown.text == "a person pirouettes proudly twice" and "pirouette/VERB" in unknown.tokens
-    no_verb = revise_caption(Caption(text="a person's t-pose, 90 degrees"), PROUD, "adverb")
+    no_verb = revise_caption(Caption(text="a person's t-pose, 90 degrees"), PROUD, "adverb", vocab=WORDS)
     assert no_verb.text == "a person's t-pose, 90 degrees in a proud way"
     assert no_verb.tokens[:3] == ["a/DET", "person/NOUN", "tpose/X"]
     assert_valid_and_aligned(no_verb)
@@ -152,32 +157,32 @@ def test_captions_without_tokens_are_tagged_by_rule() -> None:
 
 def test_misaligned_or_bad_tokens() -> None:
     short = Caption(text="a person walks in a circle", tokens=["a/DET", "person/NOUN", "walk/VERB"])
-    revised = revise_caption(short, PROUD, "adverb")  # token field does not line up: re-tagged by rule
+    revised = revise_caption(short, PROUD, "adverb", vocab=WORDS)  # token field does not line up: re-tagged by rule
     assert revised.text == "a person walks proudly in a circle"
     assert_valid_and_aligned(revised)
     with pytest.raises(MotionDataError, match="unknown POS tag"):
-        revise_caption(Caption(text="a man walks", tokens=["a/DET", "man/NOUNS", "walk/VERB"]), PROUD)
+        revise_caption(Caption(text="a man walks", tokens=["a/DET", "man/NOUNS", "walk/VERB"]), PROUD, vocab=WORDS)
     with pytest.raises(MotionDataError, match="not plain words"):
-        revise_caption(CAPTIONS[0], StyleWords(adjective="proud/ADJ"))
+        revise_caption(CAPTIONS[0], StyleWords(adjective="proud/ADJ"), vocab=WORDS)
 
 
 def test_revised_captions_deterministic_and_distinct() -> None:
-    first = revised_captions(CAPTIONS[:3], PROUD, n_variants=3, seed=4)
-    assert first == revised_captions(CAPTIONS[:3], PROUD, n_variants=3, seed=4)
+    first = revised_captions(CAPTIONS[:3], PROUD, n_variants=3, seed=4, vocab=WORDS)
+    assert first == revised_captions(CAPTIONS[:3], PROUD, n_variants=3, seed=4, vocab=WORDS)
     assert len(first) == 3 and len({c.text for c in first}) == 3
     kinds = {
         ("adj" if "proud " in c.text and "proud way" not in c.text else "adv" if "proudly" in c.text else "phrase")
         for c in first
     }
     assert kinds == {"adj", "adv", "phrase"}  # the three phrasings cycle over the clip's captions
-    more = revised_captions(CAPTIONS[:2], OLD, n_variants=6, seed=0)
+    more = revised_captions(CAPTIONS[:2], OLD, n_variants=6, seed=0, vocab=WORDS)
     assert len(more) == 6 and len({c.text for c in more}) == 6
     for caption in more:
         assert_valid_and_aligned(caption)
-    assert {revised_captions(CAPTIONS[:3], PROUD, seed=s)[0].text for s in range(8)} != {first[0].text}
-    assert revised_captions([], PROUD) == []
+    assert {revised_captions(CAPTIONS[:3], PROUD, seed=s, vocab=WORDS)[0].text for s in range(8)} != {first[0].text}
+    assert revised_captions([], PROUD, vocab=WORDS) == []
     with pytest.raises(MotionDataError, match="n_variants"):
-        revised_captions(CAPTIONS, PROUD, n_variants=0)
+        revised_captions(CAPTIONS, PROUD, n_variants=0, vocab=WORDS)
 
 
 def test_descriptions() -> None:
@@ -187,11 +192,11 @@ def test_descriptions() -> None:
     assert style_word_in("an unproud walk", PROUD) is None  # whole words only
     with pytest.raises(MotionDataError, match="names none of the style's words"):
         require_style_word("a person walks", PROUD, "styles/proud.json")
-    assert neutral_description("a person walks proudly") == "a person walks"
-    assert neutral_description("An old man walks like an old man.") == "A man walks."
-    assert neutral_description("the walk is angry") == "the walk is neutral"
+    assert neutral_description("a person walks proudly", vocab=WORDS) == "a person walks"
+    assert neutral_description("An old man walks like an old man.", vocab=WORDS) == "A man walks."
+    assert neutral_description("the walk is angry", vocab=WORDS) == "the walk is neutral"
     with pytest.raises(MotionDataError, match="nothing left"):
-        neutral_description("proudly")
+        neutral_description("proudly", vocab=WORDS)
 
 
 WORD_POOL = [
@@ -238,12 +243,12 @@ def test_revision_keeps_tokens_aligned_property(
     style = STYLES[style_name]
     if all(word in ("sadly", "proudly") for word, _ in items):
         with pytest.raises(MotionDataError):
-            revise_caption(caption, style, variant)
+            revise_caption(caption, style, variant, vocab=WORDS)
         return
-    revised = revise_caption(caption, style, variant)
+    revised = revise_caption(caption, style, variant, vocab=WORDS)
     assert_valid_and_aligned(revised)
     assert style_word_in(revised.text, style) is not None
-    assert revise_caption(revised, style, variant) == revised
+    assert revise_caption(revised, style, variant, vocab=WORDS) == revised
     others = [w for name, w in STYLES.items() if name != style_name]
     for other in others:
         for form in (other.adverb, *other.phrases):
@@ -259,6 +264,8 @@ def test_label_captions_revised_into_every_bandai_style_are_fully_tagged() -> No
     for words in label_style_words().values():
         for content in CONTENT_PHRASES:
             for seed in range(4):
-                for revised in revised_captions(label_captions(content, "normal", n=3, seed="x"), words, 3, seed):
+                for revised in revised_captions(
+                    label_captions(content, "normal", n=3, seed="x"), words, 3, seed, vocab=WORDS
+                ):
                     untagged.update({t: revised.text for t in revised.tokens if t.endswith("/X")})
     assert not untagged

@@ -14,7 +14,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 from conftest import FIXTURES, REPO
 
-from motionaug.augment.eval.inputs import pad_batch
+from motionaug.augment.motion.batch import pad_batch
 from motionaug.augment.training.evaluators import classifier_accuracy, classifier_features, fit_classifier
 from motionaug.models.evaluators import content_classifier, joints_to_evaluator_input, make_classifier, style_classifier
 from motionaug.models.minilm import BertEncoder, load_tokenizer

@@ -19,9 +19,9 @@ from fixtures.evaluation.tiny_run import add_loss_curve, build_base_models, buil
 from typer.testing import CliRunner
 
 from motionaug.augment.corpus import Corpus
-from motionaug.augment.eval.evaluation import SCORES_FILE, evaluate_run, load_classifiers, paired_ground_truth
-from motionaug.augment.eval.inputs import pad_batch
-from motionaug.augment.eval.metrics import (
+from motionaug.augment.eval.evaluation import evaluate_run, load_classifiers, paired_ground_truth
+from motionaug.augment.eval.report import format_value
+from motionaug.augment.metrics import (
     diversity,
     foot_contact_accuracy,
     foot_contacts_from_joints,
@@ -30,10 +30,10 @@ from motionaug.augment.eval.metrics import (
     mpjpe,
     recognition_accuracy,
 )
-from motionaug.augment.eval.report import format_value
-from motionaug.augment.outputs.run_dir import RunDir
+from motionaug.augment.motion.batch import pad_batch
+from motionaug.augment.motion.features import features_to_joints
+from motionaug.augment.outputs.run_dir import SCORES_FILE, RunDir
 from motionaug.augment.outputs.shards import iter_shard_rows, row_motion
-from motionaug.augment.render.previews import features_to_joints
 from motionaug.schemas.skeleton import T2M
 from motionaug.workflows.cli import app
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from motionaug.augment.eval.metrics import foot_skating_ratio
+from motionaug.augment.metrics import foot_skating_ratio
 from motionaug.augment.motion.features import feature_slices, recover_from_ric, recover_root_rot_pos
 from motionaug.augment.motion.foot_lock import lock_feet
 from motionaug.schemas.skeleton import T2M

@@ -17,9 +17,9 @@ from test_mdm import official_state_dict
 from typer.testing import CliRunner
 
 from motionaug.augment.corpus import Corpus
-from motionaug.augment.methods.base import TransferOutput
 from motionaug.augment.methods.onthefly.method import OnTheFlyMethod
 from motionaug.augment.outputs.run_dir import RunDir
+from motionaug.augment.outputs.shards import TransferOutput
 from motionaug.augment.synth import generate_corpus
 from motionaug.augment.training.base_models import BaseModels
 from motionaug.augment.training.from_mdm import MdmSource, infer_mdm_config, load_mdm_prior, pretrain_from_mdm

@@ -30,6 +30,7 @@ from motionaug.augment.corpus.import_bvh import (
 from motionaug.augment.corpus.parquet import read_parquet_corpus
 from motionaug.augment.motion.features import compute_mean_std
 from motionaug.augment.motion.retarget import JointMap
+from motionaug.augment.synth.styles import STYLE_WORDS
 from motionaug.augment.text.caption_revision import caption_words, has_style_words, neutralise_caption, revise_caption
 from motionaug.augment.text.label_captions import (
     CONTENT_PHRASES,
@@ -70,7 +71,7 @@ def cfg_labels(dataset: str, kind: str) -> list[str]:
 CONTENTS = {d: cfg_labels(d, "content") for d in ("dataset-1", "dataset-2")}
 STYLES = {d: cfg_labels(d, "style") for d in ("dataset-1", "dataset-2")}
 PAIRS = [(c, s) for d in CONTENTS for c in CONTENTS[d] for s in STYLES[d]]
-VOCAB = neutralising_vocab()
+VOCAB = neutralising_vocab(STYLE_WORDS)
 WORDS = label_style_words()
 
 
@@ -167,10 +168,10 @@ def test_label_captions_are_several_distinct_and_seeded() -> None:
 
 
 def test_caption_revision_inserts_style_words_after_verbs() -> None:
-    walk = revise_caption(label_caption("walk", "normal"), WORDS["active"], "adverb", VOCAB)
+    walk = revise_caption(label_caption("walk", "normal"), WORDS["active"], "adverb", vocab=VOCAB)
     assert walk.text == "a person walks energetically forward."
     assert walk.tokens[2:4] == ["walk/VERB", "energetically/ADV"]
-    turn = revise_caption(label_caption("walk-turn-right", "normal"), WORDS["exhausted"], "adverb", VOCAB)
+    turn = revise_caption(label_caption("walk-turn-right", "normal"), WORDS["exhausted"], "adverb", vocab=VOCAB)
     assert turn.text == "a person walks wearily and turns wearily right."
     assert turn.tokens == [
         "a/DET", "person/NOUN", "walk/VERB", "wearily/ADV", "and/CCONJ", "turn/VERB", "wearily/ADV", "right/ADV",
@@ -178,11 +179,11 @@ def test_caption_revision_inserts_style_words_after_verbs() -> None:
     comma = Caption(
         text="a person is running, exhausted.", tokens=["a/DET", "person/NOUN", "is/AUX", "run/VERB", "exhausted/ADJ"]
     )
-    restyled = revise_caption(comma, WORDS["youthful"], "adverb", VOCAB)
+    restyled = revise_caption(comma, WORDS["youthful"], "adverb", vocab=VOCAB)
     assert restyled.text == "a person is running youthfully."
     assert restyled.tokens == ["a/DET", "person/NOUN", "is/AUX", "run/VERB", "youthfully/ADV"]
     for caption in all_label_captions("walk", "elderly"):  # one label style into another: old words out, new in
-        revised = revise_caption(caption, WORDS["youthful"], "adverb", VOCAB)
+        revised = revise_caption(caption, WORDS["youthful"], "adverb", vocab=VOCAB)
         assert "elderly" not in revised.text and " old " not in revised.text, revised.text
         assert "walk/VERB" in revised.tokens and "youthfully/ADV" in revised.tokens, revised.text
         assert revised.tokens[revised.tokens.index("walk/VERB") + 1] == "youthfully/ADV", revised.text

@@ -10,6 +10,22 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 LAYERS = ["schemas", "models", "augment", "workflows"]
+# Inside ``augment/``: its sub-packages and top modules, lowest first; each may import only those before it.
+AUGMENT_ORDER = [
+    "io",  # atomic files
+    "device",  # torch device choice
+    "diffusion",  # noise schedule, samplers, inpainting (no networks)
+    "motion",  # rotations, kinematics, features, BVH, batches
+    "metrics",  # scores on arrays (accuracy, FMD, foot skating)
+    "text",  # caption tokens and revision
+    "corpus",  # corpus formats, import, style examples
+    "synth",  # the procedural style corpus
+    "render",  # previews
+    "outputs",  # run folders, shards, export
+    "training",  # pre-training the base models
+    "methods",  # the style transfer methods
+    "eval",  # run evaluation, reports, the held-out protocol
+]
 FORBIDDEN_EXTERNAL = {"schemas": {"torch", "ray"}, "models": {"ray"}, "augment": {"ray"}}
 
 
@@ -70,3 +86,68 @@ def test_every_package_folder_is_installed() -> None:
         for init in (REPO / layer).rglob("__init__.py")
     }
     assert listed == found
+
+
+def _augment_unit(module: str) -> str | None:
+    """``motionaug.augment.motion.features`` -> ``motion``; None outside ``augment``."""
+    parts = module.split(".")
+    return parts[2] if parts[:2] == ["motionaug", "augment"] and len(parts) > 2 else None
+
+
+def test_augment_units_import_only_lower_units() -> None:
+    """The order inside ``augment/`` is written once (``AUGMENT_ORDER``); no import runs upward, late ones included."""
+    units = {p.stem if p.is_file() else p.name for p in (REPO / "augment").iterdir() if p.suffix == ".py" or p.is_dir()}
+    units -= {"__init__", "__pycache__"}
+    assert units == set(AUGMENT_ORDER), "AUGMENT_ORDER lists every sub-package and top module of augment/"
+    offenders = []
+    for path in (REPO / "augment").rglob("*.py"):
+        rel = path.relative_to(REPO / "augment")
+        own = rel.parts[0].removesuffix(".py")
+        if own == "__init__":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            names = []
+            if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                names = (
+                    [node.module] + [f"{node.module}.{a.name}" for a in node.names]
+                    if node.module == "motionaug.augment"
+                    else [node.module]
+                )
+            elif isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            for name in names:
+                unit = _augment_unit(name)
+                if unit and unit != own and AUGMENT_ORDER.index(unit) > AUGMENT_ORDER.index(own):
+                    offenders.append(f"augment/{rel.as_posix()} imports {name}")
+    assert not offenders, offenders
+
+
+def test_the_package_never_imports_lab() -> None:
+    """``lab/`` is research code beside the package; the product must install and run without it."""
+    lab_modules = {p.stem for p in (REPO / "lab").glob("*.py")} | {"lab"}
+    offenders = {
+        f"{path.relative_to(REPO)} imports {sorted(hit)}"
+        for layer in LAYERS
+        for path in (REPO / layer).rglob("*.py")
+        if (hit := _bare_imports(path) & lab_modules)
+    }
+    assert not offenders, sorted(offenders)
+
+
+def test_bench_scripts_use_the_public_api_only() -> None:
+    """A benchmark imports no other script (no ``sys.path`` tricks, no ``bench_*`` modules) and no private name."""
+    scripts = {p.stem for p in (REPO / "bench").glob("*.py")}
+    offenders = []
+    for path in (REPO / "bench").glob("*.py"):
+        text = path.read_text(encoding="utf-8")
+        if "sys.path" in text:
+            offenders.append(f"{path.name} edits sys.path")
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, ast.ImportFrom) and node.module:
+                if node.module.split(".")[0] in scripts:
+                    offenders.append(f"{path.name} imports the script {node.module}")
+                if node.module.startswith("motionaug") and any(a.name.startswith("_") for a in node.names):
+                    offenders.append(f"{path.name} imports a private name from {node.module}")
+            elif isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__"):
+                offenders.append(f"{path.name}:{node.lineno} reads the private {node.attr}")
+    assert not offenders, offenders

@@ -9,16 +9,19 @@ import numpy as np
 import pytest
 import torch
 
-from motionaug.augment.eval.metrics import (
+from motionaug.augment.metrics import (
     diversity,
     foot_contact_accuracy,
     foot_contacts_from_features,
     foot_contacts_from_joints,
     foot_skating_ratio,
     frechet_distance,
+    matched_fmd,
+    mean_foot_skating,
     mpjpe,
     recognition_accuracy,
     retrieval_r_at_k,
+    wilson_interval,
 )
 from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.skeleton import T2M
@@ -151,7 +154,8 @@ def test_retrieval_r_at_k() -> None:
 
 
 def test_features_to_joints_matches_the_dataset_and_feeds_the_classifier(shared_data: Path) -> None:
-    from motionaug.augment.eval.inputs import features_to_joints, pad_batch
+    from motionaug.augment.motion.batch import pad_batch
+    from motionaug.augment.motion.features import features_to_joints
     from motionaug.models.evaluators import content_classifier
 
     feats = np.load(shared_data / "humanml3d_sample" / "new_joint_vecs" / "012314.npy")
@@ -159,10 +163,34 @@ def test_features_to_joints_matches_the_dataset_and_feeds_the_classifier(shared_
     mean = np.load(shared_data / "humanml3d_sample" / "Mean.npy")
     std = np.load(shared_data / "humanml3d_sample" / "Std.npy")
     joints = features_to_joints((feats - mean) / std, T2M, mean=mean, std=std)
-    np.testing.assert_allclose(joints.numpy(), joints_ref, atol=1e-4)
+    np.testing.assert_allclose(joints, joints_ref, atol=1e-4)
     batch, mask = pad_batch([joints, joints[:50]])
     assert batch.shape == (2, 170, 22, 3) and mask.sum(dim=1).tolist() == [170, 50]
     model = content_classifier(4, size="tiny").eval()
     assert model(batch, mask).shape == (2, 4)
     with pytest.raises(MotionDataError, match="width 262"):
         features_to_joints(feats[:, :262], T2M)
+
+
+def test_wilson_interval_stays_inside_0_1_and_narrows_with_n() -> None:
+    low, high = wilson_interval(0, 10)
+    assert low == 0.0 and 0.2 < high < 0.35
+    low, high = wilson_interval(10, 10)
+    assert high == 1.0 and 0.65 < low < 0.8
+    low, high = wilson_interval(5, 10)
+    assert abs((low + high) / 2 - 0.5) < 1e-12
+    assert wilson_interval(50, 100)[1] - wilson_interval(50, 100)[0] < high - low
+    assert all(np.isnan(wilson_interval(0, 0)))
+
+
+def test_matched_fmd_draws_both_sets_to_the_smaller_count() -> None:
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(size=(40, 4)), rng.normal(size=(90, 4)) + 3.0
+    fmd, n = matched_fmd(a, b, seed=1)
+    assert n == 40 and fmd == matched_fmd(a, b, seed=1)[0]
+    assert fmd > matched_fmd(a, rng.normal(size=(90, 4)), seed=1)[0] + 10
+
+
+def test_mean_foot_skating_skips_one_frame_clips() -> None:
+    still = np.zeros((10, T2M.n_joints, 3))
+    assert mean_foot_skating([still, still[:1]], T2M, 20.0) == foot_skating_ratio(still, T2M, 20.0)

@@ -19,7 +19,7 @@ from safetensors.torch import load_file, save_file
 from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.corpus.rejects import Reject
 from motionaug.augment.corpus.style_examples import load_style_examples
-from motionaug.augment.methods.base import ARTIFACT_JSON, ARTIFACT_WEIGHTS, TransferOutput
+from motionaug.augment.methods.base import ARTIFACT_JSON, ARTIFACT_WEIGHTS
 from motionaug.augment.methods.onthefly import (
     ContentPool,
     MotionBatch,
@@ -38,7 +38,8 @@ from motionaug.augment.motion.features import compute_mean_std
 from motionaug.augment.motion.foot_lock import lock_feet
 from motionaug.augment.motion.tempo import retime
 from motionaug.augment.outputs.checksums import RUN_FACTS
-from motionaug.augment.synth import sample_spec
+from motionaug.augment.outputs.shards import TransferOutput
+from motionaug.augment.synth import STYLE_WORDS, sample_spec
 from motionaug.augment.synth.corpus import spec_to_clip
 from motionaug.augment.training.base_models import BaseModels, BaseModelsInfo, config_dict
 from motionaug.models.mdm import MDM, MDMConfig
@@ -177,7 +178,7 @@ def test_neutral_twin_keeps_trajectory_channels_exactly(base: BaseModels, clips:
 def test_finetune_lowers_reconstruction_loss(base: BaseModels, clips: dict[str, MotionClip]) -> None:
     params = parse_params(FAST, lambda_s=0.0, max_steps=40, lr=2e-3)
     generator = torch.Generator().manual_seed(0)
-    pairs = make_pairs(base, [clips["proud_walk"]], params, generator)
+    pairs = make_pairs(base, [clips["proud_walk"]], params, generator, STYLE_WORDS)
     calls: list[tuple[int, int]] = []
     fit = finetune(base, pairs, ContentPool([], []), params, progress=lambda i, n, m: calls.append((i, n)))
     losses = [r["l_rec"] for r in fit.curve]
@@ -365,7 +366,7 @@ def test_weight_average_follows_the_training_and_is_shipped(base: BaseModels, cl
     assert torch.allclose(average.shadow[0], torch.full((3,), 2.5))  # 0 -> 1 -> 2.5
     average.copy_to_params()
     assert torch.equal(average.params[0].data, torch.full((3,), 2.5))
-    pairs = make_pairs(base, [clips["proud_walk"]], parse_params(FAST), torch.Generator().manual_seed(0))
+    pairs = make_pairs(base, [clips["proud_walk"]], parse_params(FAST), torch.Generator().manual_seed(0), STYLE_WORDS)
     plain = finetune(base, pairs, ContentPool([], []), parse_params(FAST, lambda_s=0.0, max_steps=6))
     smooth = finetune(base, pairs, ContentPool([], []), parse_params(FAST, lambda_s=0.0, max_steps=6, ema_decay=0.5))
     assert [r["l_rec"] for r in plain.curve] == [r["l_rec"] for r in smooth.curve]  # averaging never feeds back

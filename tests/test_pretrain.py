@@ -12,6 +12,7 @@ import torch
 from pydantic import ValidationError
 from safetensors.torch import load_file
 
+from motionaug.augment.corpus.fingerprint import corpus_fingerprint
 from motionaug.augment.device import DEVICE_ENV
 from motionaug.augment.diffusion import NoiseSchedule
 from motionaug.augment.diffusion.gaussian import sample_timesteps
@@ -38,7 +39,6 @@ from motionaug.augment.training.pretrain import (
     Run,
     _load_data,
     build_prior,
-    corpus_fingerprint,
     ensure_base_models,
     pretrain,
     prior_loss,

@@ -16,8 +16,9 @@ from typer.testing import CliRunner
 
 from motionaug.augment.corpus import Corpus
 from motionaug.augment.motion.bvh import read_bvh
+from motionaug.augment.motion.features import features_to_joints
 from motionaug.augment.outputs.shards import iter_shard_rows, row_motion
-from motionaug.augment.render.previews import features_to_joints, find_ffmpeg
+from motionaug.augment.render.previews import find_ffmpeg
 from motionaug.schemas.skeleton import T2M
 from motionaug.workflows.cli import app
 

@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from motionaug.augment.eval.inputs import features_to_joints
-from motionaug.augment.motion.features import extract_features, feature_slices
+from motionaug.augment.motion.features import extract_features, feature_slices, features_to_joints
 from motionaug.augment.motion.tempo import (
     cycle_period,
     ground_speed,

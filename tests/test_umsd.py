@@ -17,7 +17,7 @@ import torch
 from pydantic import ValidationError
 
 from motionaug.augment.corpus import Corpus, MotionClip, Reject
-from motionaug.augment.methods.base import ARTIFACT_JSON, TrainingSpec, TransferOutput
+from motionaug.augment.methods.base import ARTIFACT_JSON, TrainingSpec
 from motionaug.augment.methods.common import feet_channels, trajectory_channels
 from motionaug.augment.methods.umsd import (
     UmsdTrainConfig,
@@ -46,6 +46,7 @@ from motionaug.augment.methods.umsd.training import pace_channels, x0_from_outpu
 from motionaug.augment.motion.features import feature_slices
 from motionaug.augment.motion.spectrum import band_power
 from motionaug.augment.motion.tempo import ground_speed
+from motionaug.augment.outputs.shards import TransferOutput
 from motionaug.augment.synth import generate_corpus, restyled
 from motionaug.models.umsd import UmsdConfig, UmsdNet, pack
 from motionaug.schemas.errors import MotionDataError

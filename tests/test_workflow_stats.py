@@ -9,7 +9,6 @@ import pytest
 
 from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.corpus.rejects import Reject
-from motionaug.augment.methods.base import TransferOutput
 from motionaug.augment.methods.registry import (
     create_method,
     known_methods,
@@ -17,6 +16,7 @@ from motionaug.augment.methods.registry import (
     validate_method_params,
 )
 from motionaug.augment.methods.stats_baseline import StatsBaselineMethod, pose_channels
+from motionaug.augment.outputs.shards import TransferOutput
 from motionaug.schemas.captions import Caption
 from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.styles import StyleSpec

@@ -515,7 +515,7 @@ def export_command(
 
     note_output(out)
     if fmt == "bvh":
-        from motionaug.augment.motion.bvh_export import export_bvh
+        from motionaug.augment.outputs.bvh_export import export_bvh
 
         b = run_safely(lambda: export_bvh(run, out, style))
         console.print(

@@ -34,11 +34,11 @@ from pydantic import BaseModel
 
 from motionaug.augment.corpus import Corpus, MotionClip, Reject, write_rejects
 from motionaug.augment.corpus.style_examples import load_style_examples
-from motionaug.augment.methods.base import StyleModel, StyleTransferMethod, TrainingSpec, TransferOutput
+from motionaug.augment.methods.base import StyleModel, StyleTransferMethod, TrainingSpec
 from motionaug.augment.methods.registry import create_method
 from motionaug.augment.outputs.checksums import sha256_file, sha256_tree
 from motionaug.augment.outputs.run_dir import RunDir
-from motionaug.augment.outputs.shards import output_row, publish_dir, write_shard
+from motionaug.augment.outputs.shards import TransferOutput, output_row, publish_dir, write_shard
 from motionaug.augment.training.pretrain import TRAINING_RECORDS
 from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.run_config import RunConfig

@@ -88,6 +88,14 @@ class Corpus:
             yield clip, clip.meta.get("parent", clip.id)
         self.rejects = list(reader.rejects)
 
+    def by_style(self) -> dict[str, list[MotionClip]]:
+        """The clips (of this view's split) grouped by their style label, in corpus order; unlabelled ones left out."""
+        out: dict[str, list[MotionClip]] = {}
+        for clip in self:
+            if clip.style:
+                out.setdefault(clip.style, []).append(clip)
+        return out
+
     def load(self, ids: Sequence[str], files: Iterable[str] | None = None) -> tuple[list[MotionClip], list[Reject]]:
         """The clips ``ids`` in that order, read from their source ``files`` (found from the ids when None).
 

@@ -36,8 +36,8 @@ from scipy.linalg import LinAlgWarning
 from motionaug.augment.corpus import Corpus
 from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.corpus.humanml3d import check_id
-from motionaug.augment.eval.inputs import pad_batch
-from motionaug.augment.eval.metrics import (
+from motionaug.augment.io import atomic_path
+from motionaug.augment.metrics import (
     diversity,
     foot_contact_accuracy,
     foot_contacts_from_joints,
@@ -45,11 +45,11 @@ from motionaug.augment.eval.metrics import (
     frechet_distance,
     mpjpe,
 )
-from motionaug.augment.io import atomic_path
-from motionaug.augment.outputs.run_dir import RunDir
+from motionaug.augment.motion.batch import pad_batch
+from motionaug.augment.motion.features import features_to_joints
+from motionaug.augment.outputs.run_dir import CONTENT_SCORE, SCORES_FILE, RunDir
 from motionaug.augment.outputs.shards import iter_shard_rows, row_motion
 from motionaug.augment.outputs.verify import verified_shards
-from motionaug.augment.render.previews import features_to_joints
 from motionaug.augment.training.base_models import (
     BASE_JSON,
     CONTENT_CLASSIFIER,
@@ -64,8 +64,6 @@ from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.shards import Manifest
 from motionaug.schemas.skeleton import T2M, Skeleton
 
-SCORES_FILE = "scores.parquet"
-CONTENT_SCORE = "content_score"
 # method score names (shard ``scores`` map) -> scores.parquet columns
 METHOD_SCORES = {
     "style_score": "method_style_score",
@@ -199,12 +197,6 @@ def load_classifiers(path: str | Path) -> Classifiers:
     )
 
 
-def read_run(run_dir: Path) -> tuple[Manifest, dict]:
-    """The manifest and resolved config of a complete run."""
-    manifest = RunDir(run_dir).manifest()
-    return manifest, manifest.config
-
-
 def _base_models_dir(run_dir: Path, manifest: Manifest, config: dict, given: Path | None) -> Path | None:
     """``--base-models``, else the run's recorded or configured base models, else ``<run>/base_models``."""
     if given is not None:
@@ -264,7 +256,7 @@ def _read_sources(corpus: Path, ids: set[str], notes: list[str]) -> dict[str, _S
     found: dict[str, _Source] = {}
     for clip in Corpus(corpus, feature_dim=T2M.feature_dim):
         if clip.id in ids and clip.id not in found:
-            joints = features_to_joints(clip.motion, T2M, f"clip {clip.id}")
+            joints = features_to_joints(clip.motion, T2M, source=f"clip {clip.id}")
             skating = foot_skating_ratio(joints, T2M, clip.fps) if len(joints) > 1 else None
             found[clip.id] = _Source(foot_contacts_from_joints(joints, T2M), skating, clip.meta.get("spec"))
     missing = len(ids) - len(found)
@@ -285,7 +277,7 @@ def paired_ground_truth(spec_json: str, style: str, skeleton: Skeleton = T2M) ->
         return None
     rendered = render(ClipSpec.from_json(spec_json).with_style(style))
     features = extract_features(rendered.joints, skeleton, source=f"ground truth ({style})")
-    return features_to_joints(features, skeleton, f"ground truth ({style})")
+    return features_to_joints(features, skeleton, source=f"ground truth ({style})")
 
 
 # ---- per clip --------------------------------------------------------------------------------------
@@ -363,7 +355,8 @@ def evaluate_run(
     ``base_models`` holds the classifiers (default: the run's base models).
     """
     run_dir = Path(run_dir)
-    manifest, config = read_run(run_dir)
+    manifest = RunDir(run_dir).manifest()
+    config = manifest.config
     notes: list[str] = []
     corpus = Path(config["corpus"]["path"])
     reference = Path(reference) if reference is not None else corpus
@@ -431,7 +424,7 @@ def _throughput(manifest: Manifest) -> float | None:
 
 def _evaluators_trained_on(classifiers: Classifiers, corpus: Path) -> bool:
     """Whether the evaluators were fit on this corpus (its train split), from the corpus fingerprint."""
-    from motionaug.augment.training.pretrain import corpus_fingerprint
+    from motionaug.augment.corpus.fingerprint import corpus_fingerprint
 
     try:
         return bool(classifiers.corpus_fingerprint) and corpus_fingerprint(corpus) == classifiers.corpus_fingerprint
@@ -483,7 +476,7 @@ def _score_batch(
     records: list[dict],
     feats: list[np.ndarray],
 ) -> None:
-    joints = [features_to_joints(row_motion(r), T2M, f"stylized clip {r['output_id']}") for r in rows]
+    joints = [features_to_joints(row_motion(r), T2M, source=f"stylized clip {r['output_id']}") for r in rows]
     columns: dict[str, list] = {}
     for prefix in ("content", "style"):
         model = getattr(classifiers, prefix) if classifiers else None
@@ -536,7 +529,7 @@ def _real_features(
     feats: dict[str, list[np.ndarray]] = {s: [] for s in styles}
     for clip in Corpus(reference, feature_dim=T2M.feature_dim):
         if clip.style in wanted:
-            joints[clip.style].append(features_to_joints(clip.motion, T2M, f"clip {clip.id}"))
+            joints[clip.style].append(features_to_joints(clip.motion, T2M, source=f"clip {clip.id}"))
             if len(joints[clip.style]) == 64:  # features only are kept, never a whole corpus of joints
                 feats[clip.style].append(classify(classifiers.style, joints[clip.style])[1])
                 joints[clip.style] = []
@@ -638,19 +631,6 @@ def write_scores(evaluation: Evaluation, path: Path | None = None) -> Path:
     return target
 
 
-def read_content_scores(run_dir: Path) -> dict[str, float] | None:
-    """output_id -> content score from ``scores.parquet``; None when the run has not been evaluated."""
-    path = Path(run_dir) / SCORES_FILE
-    if not path.is_file():
-        return None
-    try:
-        table = pq.read_table(path, columns=["output_id", CONTENT_SCORE])
-    except (OSError, pa.ArrowInvalid, KeyError) as err:
-        raise MotionDataError(str(path), f"unreadable scores file ({str(err).splitlines()[0]})") from None
-    pairs = zip(table["output_id"].to_pylist(), table[CONTENT_SCORE].to_pylist())
-    return {oid: float(score) for oid, score in pairs if score is not None}
-
-
 # ---- looking at single clips (``motionaug preview``) ---------------------------------------------
 # User-given ids are matched against ids the corpus or the shards list; they never become paths
 # themselves, and a file name is only made from an id that passed ``check_id``.
@@ -742,8 +722,8 @@ def preview_grid(run_dir: Path, n: int, out: Path | None = None, seed: int = 0, 
         row = find_stylized(run_dir, source_id, style, shards)
         content = find_corpus_clip(corpus, source_id)
         panels = [
-            Panel(features_to_joints(content.motion, T2M, f"clip {source_id}"), "content", CONTENT_COLOR),
-            Panel(features_to_joints(row_motion(row), T2M, row["output_id"]), style, STYLIZED_COLOR),
+            Panel(features_to_joints(content.motion, T2M, source=f"clip {source_id}"), "content", CONTENT_COLOR),
+            Panel(features_to_joints(row_motion(row), T2M, source=row["output_id"]), style, STYLIZED_COLOR),
         ]
         rows.append(SheetRow(f"{style} · {source_id}: {_first_text(row['captions']) or ''}", panels))
     target = out if out is not None else Path(run_dir) / "previews" / f"grid-{len(rows)}-seed{seed}.png"

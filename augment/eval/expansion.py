@@ -24,8 +24,8 @@ from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.corpus.humanml3d import ADDED_SPLIT, write_humanml3d
 from motionaug.augment.diffusion import bind_model, ddim_sample
 from motionaug.augment.eval.evaluation import Classifiers, load_classifiers
-from motionaug.augment.eval.metrics import diversity, frechet_distance, retrieval_r_at_k
 from motionaug.augment.io import atomic_save_npy, atomic_write_text
+from motionaug.augment.metrics import diversity, frechet_distance, retrieval_r_at_k
 from motionaug.augment.motion.features import Normalizer, compute_mean_std
 from motionaug.augment.training.base_models import BaseModels
 from motionaug.augment.training.data import MotionSet, build_motion_set, iter_batches, read_clips, split_ids

@@ -20,17 +20,16 @@ from __future__ import annotations
 import json
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar, Protocol
 
-import numpy as np
 from pydantic import BaseModel, ValidationError
 
 from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.corpus.rejects import Reject
 from motionaug.augment.io import atomic_write_text
-from motionaug.schemas.captions import Caption
+from motionaug.augment.outputs.shards import TransferOutput
 from motionaug.schemas.errors import MotionDataError, first_error
 from motionaug.schemas.styles import StyleSpec
 
@@ -42,17 +41,6 @@ Progress = Callable[[int, int, dict[str, float]], None]
 
 TrainProgress = Callable[[str, int, int, dict[str, float]], None]
 """``progress(stage, step, total, metrics)``: the same for a training with several stages."""
-
-
-@dataclass
-class TransferOutput:
-    """One stylized clip. ``motion`` is (T, D) float32 un-normalised features like the input's."""
-
-    source_id: str
-    style: str
-    motion: np.ndarray
-    captions: list[Caption]
-    scores: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

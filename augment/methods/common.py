@@ -40,8 +40,6 @@ from torch import Tensor, nn
 
 from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.diffusion import InpaintSpec
-from motionaug.augment.eval.inputs import features_to_joints, pad_batch
-from motionaug.augment.eval.metrics import foot_skating_ratio
 from motionaug.augment.io import atomic_path, atomic_write_text, read_json_model
 from motionaug.augment.methods.base import (
     ARTIFACT_JSON,
@@ -51,7 +49,9 @@ from motionaug.augment.methods.base import (
     TrainingSpec,
     TrainProgress,
 )
-from motionaug.augment.motion.features import feature_slices
+from motionaug.augment.metrics import foot_skating_ratio
+from motionaug.augment.motion.batch import pad_batch
+from motionaug.augment.motion.features import feature_slices, features_to_joints
 from motionaug.augment.motion.tempo import retime, style_tempo
 from motionaug.models.motion_encoder import cosine_similarity
 from motionaug.schemas.captions import Caption
@@ -172,9 +172,9 @@ def caption_text(clip: MotionClip) -> str:
 
 def style_vocab(words: StyleWords, name: str) -> dict[str, Any]:
     """The built-in styles' words plus this style's own, so a user-defined style is neutralised too."""
-    from motionaug.augment.text.caption_revision import DEFAULT_VOCAB
+    from motionaug.augment.synth.styles import STYLE_WORDS
 
-    return {**DEFAULT_VOCAB, name: words}
+    return {**STYLE_WORDS, name: words}
 
 
 def neutral_text(text: str, vocab: dict[str, Any]) -> str:
@@ -198,7 +198,7 @@ def revised_texts(
 
     captions = clip.captions or [Caption(text=caption_text(clip))]
     try:
-        revised = revised_captions(list(captions), words, n_variants, seed, vocab)
+        revised = revised_captions(list(captions), words, n_variants, seed, vocab=vocab)
     except MotionDataError as err:
         raise MotionDataError(f"clip {clip.id}", f"caption revision failed: {err}") from None
     if not revised:
@@ -362,7 +362,7 @@ def labelled_training_clips(corpus: Path, neutral_style: str, neutral: str = "ne
 
 def training_record(corpus: Path, config: BaseModel, neutral_style: str) -> dict[str, Any]:
     """What a trained folder was made from: it is reused only while all of it is the same."""
-    from motionaug.augment.training.pretrain import corpus_fingerprint
+    from motionaug.augment.corpus.fingerprint import corpus_fingerprint
 
     return {
         "corpus_fingerprint": corpus_fingerprint(corpus),

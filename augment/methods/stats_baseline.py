@@ -30,6 +30,7 @@ from motionaug.augment.methods.base import (
     TransferOutput,
 )
 from motionaug.augment.motion.features import feature_slices, recover_from_ric
+from motionaug.augment.synth.styles import STYLE_WORDS
 from motionaug.augment.text.caption_revision import revised_captions
 from motionaug.schemas.captions import Caption
 from motionaug.schemas.errors import MotionDataError
@@ -60,7 +61,7 @@ def check_clip(clip: MotionClip) -> np.ndarray:
 
 
 def revise(captions: Sequence[Caption], words: StyleWords, n_variants: int, seed: int) -> list[Caption]:
-    return list(revised_captions(list(captions), words, n_variants, seed))
+    return list(revised_captions(list(captions), words, n_variants, seed, vocab=STYLE_WORDS))
 
 
 class StatsStyleModel:
@@ -94,7 +95,7 @@ class StatsStyleModel:
         styled = (pose - mu) * scale + self.mean
         out[:, self.channels] = (1.0 - self.strength) * pose + self.strength * styled
         joints = recover_from_ric(torch.from_numpy(out), T2M.n_joints).numpy()
-        from motionaug.augment.eval.metrics import foot_skating_ratio
+        from motionaug.augment.metrics import foot_skating_ratio
 
         scores = {"foot_skating": foot_skating_ratio(joints, T2M, clip.fps)}
         captions = revise(clip.captions, self.words, self.n_variants, seed)

@@ -204,6 +204,39 @@ def recover_from_ric(data: Tensor, joints_num: int) -> Tensor:
     return torch.cat([r_pos[..., None, :], world], dim=-2)
 
 
+def features_to_joints(
+    features: ArrayT,
+    skeleton: Skeleton = T2M,
+    mean: np.ndarray | None = None,
+    std: np.ndarray | None = None,
+    *,
+    source: str = "features",
+) -> ArrayT:
+    """``(..., T, D)`` features -> ``(..., T, J, 3)`` joints via ``recover_from_ric``, as the input's type.
+
+    Normalised features are denormalised first when ``mean`` and ``std`` are given. The one conversion every
+    consumer (evaluators, previews, BVH export, training) uses, so joints mean the same thing everywhere.
+    """
+    feats = torch.as_tensor(features, dtype=torch.float32)
+    if feats.ndim < 2 or feats.shape[-1] != skeleton.feature_dim:
+        raise MotionDataError(
+            source,
+            f"width {feats.shape[-1] if feats.ndim else 0} != {skeleton.feature_dim} for skeleton {skeleton.name}"
+            f" (expected (T, {skeleton.feature_dim}) features, got {tuple(feats.shape)})",
+        )
+    if feats.shape[-2] < 1:
+        raise MotionDataError(source, "has no frames")
+    if not bool(torch.isfinite(feats).all()):
+        raise MotionDataError(source, "features contain NaN or inf")
+    if (mean is None) != (std is None):
+        raise MotionDataError(source, "give both mean and std to denormalise, or neither")
+    if mean is not None and std is not None:
+        feats = feats * torch.as_tensor(std, dtype=torch.float32) + torch.as_tensor(mean, dtype=torch.float32)
+    with torch.no_grad():
+        joints = recover_from_ric(feats, skeleton.n_joints)
+    return joints if isinstance(features, Tensor) else joints.numpy()  # type: ignore[return-value]
+
+
 def recover_from_rot(
     data: Tensor,
     joints_num: int,

@@ -7,7 +7,7 @@ walk. Poses (root-relative positions, rotations) are untouched; the root velocit
 that include it, are rewritten consistently.
 
 A toe is planted over a transition when it is below ``height`` in both frames (the rule of
-``augment.eval.metrics.foot_skating_ratio``); when both are, the lower one is held.
+``augment.metrics.foot_skating_ratio``); when both are, the lower one is held.
 """
 
 from __future__ import annotations

@@ -143,7 +143,7 @@ def export_run(
         raise MotionDataError(str(corpus), "the run's source corpus is gone; exports need it for the original clips")
     _check_target(out)
     shards = verified_shards(RunDir(run_dir))
-    evaluated = _evaluated_scores(run_dir) if min_content_score is not None else None
+    evaluated = RunDir(run_dir).content_scores() if min_content_score is not None else None
     _check_scores(run_dir, shards, min_content_score, score_name, evaluated)
     summary = ExportSummary(out=out, format=fmt)
     collector = _Collector(run_dir, run_id, corpus, min_content_score, score_name, summary, shards, evaluated)
@@ -170,13 +170,6 @@ def export_run(
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return summary
-
-
-def _evaluated_scores(run_dir: Path) -> dict[str, float] | None:
-    """Content scores from ``scores.parquet`` when the run has been evaluated (they win over the shards')."""
-    from motionaug.augment.eval.evaluation import read_content_scores  # late: evaluation pulls in the classifiers
-
-    return read_content_scores(run_dir)
 
 
 def _write_humanml3d(collector: _Collector, tmp: Path, corpus: Path, keep_mean_std: bool) -> None:

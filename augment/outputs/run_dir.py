@@ -21,6 +21,8 @@ import shutil
 from pathlib import Path
 from typing import Any, TypeVar
 
+import pyarrow as pa
+import pyarrow.parquet as pq
 from pydantic import BaseModel
 
 from motionaug.augment.io import atomic_write_text
@@ -65,6 +67,10 @@ def read_record(path: Path, kind: type[R]) -> R | None:
         return None
 
 
+SCORES_FILE = "scores.parquet"
+CONTENT_SCORE = "content_score"
+
+
 class RunDir:
     """Paths and records of one run folder."""
 
@@ -76,6 +82,7 @@ class RunDir:
     config_path = property(lambda self: self.root / "config.resolved.json")
     plan_path = property(lambda self: self.root / "plan.json")
     manifest_path = property(lambda self: self.root / "manifest.json")
+    scores_path = property(lambda self: self.root / SCORES_FILE)
     success_path = property(lambda self: self.root / "_SUCCESS")
     trained_dir = property(lambda self: self.root / "trained")
     styles_dir = property(lambda self: self.root / "styles")
@@ -177,6 +184,18 @@ class RunDir:
             ) from None
 
     # ---- temporaries --------------------------------------------------------------------------------
+
+    def content_scores(self) -> dict[str, float] | None:
+        """output_id -> content score from ``scores.parquet``; None when the run has not been evaluated."""
+        path = self.scores_path
+        if not path.is_file():
+            return None
+        try:
+            table = pq.read_table(path, columns=["output_id", CONTENT_SCORE])
+        except (OSError, pa.ArrowInvalid, KeyError) as err:
+            raise MotionDataError(str(path), f"unreadable scores file ({str(err).splitlines()[0]})") from None
+        pairs = zip(table["output_id"].to_pylist(), table[CONTENT_SCORE].to_pylist())
+        return {oid: float(score) for oid, score in pairs if score is not None}
 
     def clear(self) -> None:
         """Delete everything the folder holds but its lock (``--force``: start over, still as the one writer)."""

@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 import shutil
 from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -17,11 +18,22 @@ import pyarrow.parquet as pq
 
 from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.io import atomic_path, fsync_dir, fsync_tree
-from motionaug.augment.methods.base import TransferOutput
 from motionaug.augment.outputs.checksums import sha256_file
 from motionaug.schemas.captions import Caption
 from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.shards import output_id, shard_schema
+
+
+@dataclass
+class TransferOutput:
+    """One stylized clip. ``motion`` is (T, D) float32 un-normalised features like the input's."""
+
+    source_id: str
+    style: str
+    motion: np.ndarray
+    captions: list[Caption]
+    scores: dict[str, float] = field(default_factory=dict)
+
 
 WRITE_OPTIONS = {"compression": "zstd"}
 TMP_SUFFIX = ".tmp"

@@ -24,7 +24,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import LineCollection
@@ -36,7 +35,7 @@ from PIL import Image
 
 from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.io import atomic_path
-from motionaug.augment.motion.features import recover_from_ric
+from motionaug.augment.motion.features import features_to_joints
 from motionaug.schemas.captions import Caption
 from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.skeleton import T2M, Skeleton
@@ -101,22 +100,6 @@ class Camera:
 # Conversions and conveniences
 
 
-def features_to_joints(features: np.ndarray, skeleton: Skeleton = T2M, source: str = "features") -> np.ndarray:
-    """Joint positions (T, J, 3) float32 from un-normalised HumanML3D features (T, D), via ``recover_from_ric``."""
-    array = np.asarray(features)
-    if array.ndim != 2 or array.shape[1] != skeleton.feature_dim:
-        raise MotionDataError(
-            source, f"expected (T, {skeleton.feature_dim}) features for {skeleton.name}, got {array.shape}"
-        )
-    if array.shape[0] < 1:
-        raise MotionDataError(source, "has no frames")
-    if not np.isfinite(array).all():
-        raise MotionDataError(source, "features contain NaN or inf")
-    tensor = torch.from_numpy(np.ascontiguousarray(array, dtype=np.float32))
-    with torch.no_grad():
-        return recover_from_ric(tensor, skeleton.n_joints).numpy()
-
-
 def preview_clip(
     clip: MotionClip, out: Path, *, skeleton: Skeleton = T2M, color: str = CONTENT_COLOR, **options: Any
 ) -> Path:
@@ -154,12 +137,12 @@ def preview_pair(
         stylized_caption = stylized_clip.captions[0]
     panels = [
         Panel(
-            features_to_joints(content.motion, skeleton, f"clip {content.id}"),
+            features_to_joints(content.motion, skeleton, source=f"clip {content.id}"),
             _clip_title(content, content_caption, prefix="content"),
             CONTENT_COLOR,
         ),
         Panel(
-            features_to_joints(stylized_features, skeleton, f"stylized {content.id}"),
+            features_to_joints(stylized_features, skeleton, source=f"stylized {content.id}"),
             _titled(f"stylized{f' ({style})' if style else ''}", stylized_caption),
             STYLIZED_COLOR,
         ),

@@ -20,7 +20,6 @@ from dataclasses import dataclass, replace
 from functools import lru_cache
 from typing import Protocol
 
-from motionaug.augment.synth.styles import STYLE_WORDS
 from motionaug.augment.text.tokens import parse_token
 from motionaug.schemas.captions import Caption
 from motionaug.schemas.errors import MotionDataError
@@ -36,8 +35,6 @@ class StyleVocab(Protocol):
     @property
     def phrases(self) -> tuple[str, ...]: ...
 
-
-DEFAULT_VOCAB: Mapping[str, StyleVocab] = STYLE_WORDS  # the styles whose words are neutralised by default
 
 # ---- lexicon for captions without tokens ---------------------------------------------------------------------
 
@@ -427,8 +424,8 @@ def _before_person(doc: _Doc, counted: list[int], j: int) -> bool:
     return False
 
 
-def _vocab(vocab: Mapping[str, StyleVocab] | None, *extra: StyleVocab) -> list[StyleVocab]:
-    return [*(DEFAULT_VOCAB if vocab is None else vocab).values(), *extra]
+def _vocab(vocab: Mapping[str, StyleVocab], *extra: StyleVocab) -> list[StyleVocab]:
+    return [*vocab.values(), *extra]
 
 
 def _neutral_doc(doc: _Doc, vocab: Sequence[StyleVocab]) -> _Doc:
@@ -439,13 +436,13 @@ def _as_caption(caption: Caption | str) -> Caption:
     return Caption(text=caption) if isinstance(caption, str) else caption
 
 
-def neutralise_caption(caption: Caption, vocab: Mapping[str, StyleVocab] | None = None) -> Caption:
+def neutralise_caption(caption: Caption, vocab: Mapping[str, StyleVocab]) -> Caption:
     """The caption without any known style's words ("a person walks sadly" -> "a person walks"), tokens kept valid."""
     source = f"caption {caption.text!r}"
     return _to_caption(_neutral_doc(_parse(caption, source), _vocab(vocab)), caption, source)
 
 
-def has_style_words(caption: Caption | str, vocab: Mapping[str, StyleVocab] | None = None) -> bool:
+def has_style_words(caption: Caption | str, vocab: Mapping[str, StyleVocab]) -> bool:
     """Whether ``neutralise_caption`` would remove anything (predicate adjectives, "is angry", do not count)."""
     caption = _as_caption(caption)
     doc = _parse(caption, f"caption {caption.text!r}")
@@ -550,9 +547,9 @@ def _styled(doc: _Doc, style: StyleVocab, kind: str) -> _Doc:
 
 
 def revise_caption(
-    caption: Caption, style: StyleVocab, variant: int | str = 0, vocab: Mapping[str, StyleVocab] | None = None
+    caption: Caption, style: StyleVocab, variant: int | str = 0, *, vocab: Mapping[str, StyleVocab]
 ) -> Caption:
-    """The caption in ``style``: known style words (``vocab``, default the built-in styles, plus ``style``) are
+    """The caption in ``style``: known style words (``vocab`` plus ``style``) are
     removed first, then the style goes in as ``variant`` (an index into ``variant_kinds(style)`` or a kind name)."""
     _check_style(style)
     source = f"caption {caption.text!r}"
@@ -567,7 +564,8 @@ def revised_captions(
     style: StyleVocab,
     n_variants: int = 3,
     seed: int = 0,
-    vocab: Mapping[str, StyleVocab] | None = None,
+    *,
+    vocab: Mapping[str, StyleVocab],
 ) -> list[Caption]:
     """Distinct revised phrasings for one clip: one per caption (at least ``n_variants``, cycling the captions),
     the kinds cycling adverb / adjective / phrase from a seeded start, a later kind taken when one repeats a text."""
@@ -585,7 +583,7 @@ def revised_captions(
         family = families[(start + k) % len(families)]
         first = f"phrase:{rng.randrange(len(_phrase_options(style)))}" if family == "phrase" else family
         for kind in [first, *(x for x in kinds if x != first)]:
-            revised = revise_caption(captions[k % len(captions)], style, kind, vocab)
+            revised = revise_caption(captions[k % len(captions)], style, kind, vocab=vocab)
             if revised.text not in seen:
                 seen.add(revised.text)
                 out.append(revised)
@@ -616,7 +614,7 @@ def require_style_word(description: str, words: StyleVocab, source: str) -> str:
     return found
 
 
-def neutral_description(description: str, vocab: Mapping[str, StyleVocab] | None = None) -> str:
+def neutral_description(description: str, vocab: Mapping[str, StyleVocab]) -> str:
     """The description without style words ("a person walks proudly" -> "a person walks"); an adjective that
     cannot be dropped ("the walk is angry") becomes "neutral"."""
     source = f"description {description!r}"

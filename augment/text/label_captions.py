@@ -30,7 +30,7 @@ import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from motionaug.augment.text.caption_revision import DEFAULT_VOCAB, StyleVocab, caption_words
+from motionaug.augment.text.caption_revision import StyleVocab, caption_words
 from motionaug.schemas.captions import Caption
 from motionaug.schemas.styles import StyleWords
 
@@ -379,10 +379,10 @@ def label_style_words() -> dict[str, StyleWords]:
     return {name: style.words for name, style in LABEL_STYLES.items()}
 
 
-def neutralising_vocab(base: Mapping[str, StyleVocab] | None = None) -> dict[str, StyleVocab]:
-    """``base`` (default: caption revision's built-in styles) plus every label style, with each comma form
+def neutralising_vocab(base: Mapping[str, StyleVocab]) -> dict[str, StyleVocab]:
+    """``base`` (the other style words a caller knows) plus every label style, with each comma form
     ("..., exhausted.") added as a phrase so that ``revise_caption``/``neutralise_caption`` remove it too."""
-    vocab: dict[str, StyleVocab] = dict(DEFAULT_VOCAB if base is None else base)
+    vocab: dict[str, StyleVocab] = dict(base)
     for name, style in LABEL_STYLES.items():
         extra = (style.depictive,) if style.depictive else ()
         words = style.words

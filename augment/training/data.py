@@ -20,7 +20,7 @@ from torch import Tensor
 from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.corpus.corpus import Corpus
 from motionaug.augment.corpus.humanml3d import HumanML3DReader
-from motionaug.augment.eval.inputs import pad_batch
+from motionaug.augment.motion.batch import pad_batch
 from motionaug.augment.motion.features import Normalizer
 from motionaug.models.text_encoder import TextEncoder
 from motionaug.schemas.errors import MotionDataError

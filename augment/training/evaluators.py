@@ -22,8 +22,8 @@ import torch
 import torch.nn.functional as F
 from pydantic import BaseModel, ConfigDict, Field
 
-from motionaug.augment.eval.metrics import recognition_accuracy
 from motionaug.augment.io import atomic_write_text, read_json_model
+from motionaug.augment.metrics import recognition_accuracy
 from motionaug.augment.training.base_models import CONTENT_CLASSIFIER, STYLE_CLASSIFIER, config_dict, save_module
 from motionaug.models.evaluators import MotionClassifier
 from motionaug.schemas.errors import MotionDataError

@@ -28,6 +28,7 @@ import torch
 from safetensors.torch import load_file, save_file
 from torch import Tensor
 
+from motionaug.augment.corpus.fingerprint import corpus_fingerprint
 from motionaug.augment.device import pick_device
 from motionaug.augment.diffusion import NoiseSchedule
 from motionaug.augment.io import atomic_path
@@ -44,7 +45,6 @@ from motionaug.augment.training.pretrain import (
     _complete,
     _stale_checkpoints,
     _threads,
-    corpus_fingerprint,
     held_out_prior_mse,
     run_hash,
     skeleton_for,

@@ -35,12 +35,13 @@ import torch.distributed as dist
 from pydantic import BaseModel, ConfigDict, Field
 from torch import Tensor, nn
 
+from motionaug.augment.corpus.fingerprint import corpus_fingerprint
 from motionaug.augment.corpus.humanml3d import ADDED_SPLIT, HumanML3DReader
 from motionaug.augment.device import bf16_autocast, pick_device
 from motionaug.augment.diffusion import NoiseSchedule, masked_mse, q_sample, sample_timesteps
-from motionaug.augment.eval.inputs import features_to_joints, pad_batch
-from motionaug.augment.eval.metrics import retrieval_r_at_k
-from motionaug.augment.motion.features import Normalizer, compute_mean_std
+from motionaug.augment.metrics import retrieval_r_at_k
+from motionaug.augment.motion.batch import pad_batch
+from motionaug.augment.motion.features import Normalizer, compute_mean_std, features_to_joints
 from motionaug.augment.training.base_models import BASE_JSON, BaseModels, BaseModelsInfo, config_dict
 from motionaug.augment.training.checkpoints import (
     StageCheckpoint,
@@ -182,28 +183,6 @@ class PretrainConfig(BaseModel):
         ignored |= {"added_share"} if self.added_share is None else set()  # hashes from before the field stay valid
         relevant = self.model_dump(exclude=ignored)
         return hashlib.sha256(json.dumps(relevant, sort_keys=True).encode()).hexdigest()[:16]
-
-
-# ---- corpus identity ------------------------------------------------------------------------
-
-
-def corpus_fingerprint(corpus_dir: str | Path) -> str:
-    """Hash over every file pretraining reads (motions, captions, splits, labels, Mean/Std): content hashes.
-
-    Content rather than mtimes, so a copied corpus matches and a rewritten one with the same sizes does not.
-    """
-    root = Path(corpus_dir)
-    if not root.is_dir():
-        raise MotionDataError(str(root), "corpus folder does not exist")
-    digest = hashlib.sha256()
-    patterns = ("*.txt", "*.npy", "labels.jsonl", "new_joint_vecs/*.npy", "texts/*.txt")
-    files = sorted({p for pattern in patterns for p in root.glob(pattern) if p.is_file()})
-    if not any(p.parent.name == "new_joint_vecs" for p in files):
-        raise MotionDataError(str(root), "not a HumanML3D folder: no new_joint_vecs/*.npy")
-    for path in files:
-        digest.update(path.relative_to(root).as_posix().encode() + b"\0")
-        digest.update(hashlib.sha256(path.read_bytes()).digest())
-    return digest.hexdigest()[:32]
 
 
 def skeleton_for(feature_dim: int) -> Skeleton:

@@ -20,7 +20,6 @@ from motionaug.augment.corpus.rejects import Reject
 from motionaug.augment.corpus.style_examples import check_motion
 from motionaug.augment.device import bf16_autocast
 from motionaug.augment.diffusion import DenoiseFn, bind_model, contrast_guided, ddim_sample, start_step_for
-from motionaug.augment.methods.base import TransferOutput
 from motionaug.augment.methods.common import (
     MotionBatch,
     caption_text,
@@ -40,6 +39,7 @@ from motionaug.augment.methods.onthefly.pairs import kept_channels, neutral_twin
 from motionaug.augment.methods.onthefly.params import OnTheFlyParams
 from motionaug.augment.motion.foot_lock import lock_feet
 from motionaug.augment.motion.tempo import retime_captions
+from motionaug.augment.outputs.shards import TransferOutput
 from motionaug.augment.training.base_models import BaseModels
 from motionaug.schemas.captions import Caption
 from motionaug.schemas.errors import MotionDataError

@@ -75,7 +75,7 @@ def make_pairs(
     examples: Sequence[MotionClip],
     params: OnTheFlyParams,
     generator: torch.Generator,
-    vocab: dict[str, Any] | None = None,
+    vocab: dict[str, Any],
 ) -> StylePairs:
     """Validate the examples and generate their neutral twins with the prior (all examples in one batch).
 

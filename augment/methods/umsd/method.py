@@ -28,7 +28,6 @@ from motionaug.augment.corpus import MotionClip, Reject
 from motionaug.augment.corpus.style_examples import MIN_EXAMPLE_FRAMES, check_motion
 from motionaug.augment.device import bf16_autocast
 from motionaug.augment.diffusion import NoiseSchedule, ddim_sample, off_own_motion, start_step_for
-from motionaug.augment.eval.inputs import pad_batch
 from motionaug.augment.io import atomic_write_text
 from motionaug.augment.methods.base import (
     ARTIFACT_WEIGHTS,
@@ -62,6 +61,7 @@ from motionaug.augment.methods.umsd.training import (
     train_umsd,
     x0_from_output,
 )
+from motionaug.augment.motion.batch import pad_batch
 from motionaug.augment.motion.features import feature_slices
 from motionaug.augment.motion.kinematics import gaussian_smooth_time
 from motionaug.augment.motion.spectrum import spectral_ceiling

@@ -60,10 +60,10 @@ from torch import Tensor
 
 from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.diffusion import NoiseSchedule, SpectralPrior, estimate_spectral_prior, q_sample, skip_x0
-from motionaug.augment.eval.inputs import pad_batch
 from motionaug.augment.io import read_json_model
 from motionaug.augment.methods.base import Progress
 from motionaug.augment.methods.common import run_steps, write_model_folder
+from motionaug.augment.motion.batch import pad_batch
 from motionaug.augment.motion.features import Normalizer, compute_mean_std, feature_slices, recover_from_ric
 from motionaug.augment.synth import restyled
 from motionaug.models.pace import PaceNet

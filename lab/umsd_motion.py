@@ -1,6 +1,6 @@
 """How UMSD's synthetic transfers move, against their sources and the true renders: root height, pace, roughness.
 
-  python bench/bench_umsd_motion.py --corpus SYNTH/corpus --work WORK --tag TAG --split val [--style depressed]
+  python lab/umsd_motion.py --corpus SYNTH/corpus --work WORK --tag TAG --split val [--style depressed]
       [--by-content]
 
 Reads ``WORK/<tag>-<split>-outputs.npz`` written by bench_umsd_quality.py (no model runs) and renders each source
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # lab reuses the quality benches' loaders
 from bench_umsd_quality import RIC, load_clips  # noqa: E402
 
 from motionaug.augment.motion.features import feature_slices  # noqa: E402

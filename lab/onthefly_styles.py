@@ -1,6 +1,6 @@
 """The on-the-fly protocol of ``bench_onthefly.py`` repeated for every style of the synthetic corpus.
 
-Usage: python bench/bench_onthefly_styles.py --base-dir DIR --corpus DIR [--work /tmp/otf-styles]
+Usage: python lab/onthefly_styles.py --base-dir DIR --corpus DIR [--work /tmp/otf-styles]
        [--styles proud,old,...] [--split test|val|val+test] [--params JSON] [--lora-params JSON --lora-rank 4]
        [--no-content-clock] [--threads 2]
 
@@ -19,12 +19,15 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from bench_onthefly import HELD_OUT
-from bench_onthefly import main as bench_one
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # lab reuses the quality benches' loaders
+from bench_onthefly import HELD_OUT  # noqa: E402
+from bench_onthefly import main as bench_one  # noqa: E402
 
 
 def row(style: str, report: dict[str, Any]) -> dict[str, Any]:

@@ -1,6 +1,6 @@
 """On-the-fly transfer across corpora: a Bandai-2 style onto synthetic content, a synthetic style onto Bandai-2 content.
 
-Usage: python bench/bench_across_corpora.py --synth-corpus SYNTH --synth-base SYNTH_BASE --bandai-corpus BANDAI2
+Usage: python lab/across_corpora.py --synth-corpus SYNTH --synth-base SYNTH_BASE --bandai-corpus BANDAI2
        --bandai-base BANDAI2_BASE --work WORK [--direction both|bandai-to-synth|synth-to-bandai]
        [--styles active,...] [--n-content 36] [--params JSON] [--transfer-params JSON] [--threads 1]
 
@@ -42,16 +42,19 @@ from typing import Any
 
 import numpy as np
 import torch
-from bench_bandai2 import joints_of, wilson
-from bench_onthefly import pick_clips, style_words
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # lab reuses the quality benches' loaders
+from bench_onthefly import pick_clips, style_words  # noqa: E402
 
 from motionaug.augment.corpus import Corpus
 from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.corpus.style_examples import load_style_examples
 from motionaug.augment.eval.evaluation import Classifiers, classify, load_classifiers
-from motionaug.augment.methods.base import TransferOutput
 from motionaug.augment.methods.onthefly import POOL_CLIPS, OnTheFlyMethod, parse_params
+from motionaug.augment.metrics import wilson_interval
+from motionaug.augment.motion.features import features_to_joints
 from motionaug.augment.outputs.checksums import RUN_FACTS
+from motionaug.augment.outputs.shards import TransferOutput
 from motionaug.augment.training.data import read_clips, split_ids
 from motionaug.schemas.run_config import load_run_config
 from motionaug.schemas.styles import StyleExample, StyleSpec
@@ -138,9 +141,9 @@ def recognition(
     return {
         "clips": n,
         "sra": sra_hits / n,
-        "sra_95": wilson(sra_hits, n),
+        "sra_95": wilson_interval(sra_hits, n),
         "cra": cra_hits / n,
-        "cra_95": wilson(cra_hits, n),
+        "cra_95": wilson_interval(cra_hits, n),
         "styles_said": dict(Counter(said).most_common()),
         "contents_missed": dict(Counter(f"{t} -> {c}" for c, t in zip(content_said, contents) if c != t)),
     }
@@ -230,12 +233,12 @@ def run_direction(
     ``judges`` None: transfers only (kept for a later scoring run)."""
     method = OnTheFlyMethod(parse_params(params))
     contents = [c.content or "" for c in content]
-    inputs = [joints_of(c.motion) for c in content]
+    inputs = [features_to_joints(c.motion) for c in content]
     by_id = {c.id: c for c in content}
 
     def score(outs: Outputs, style: str) -> dict[str, Any]:
         assert judges is not None
-        joints = [joints_of(m) for _, m in outs]
+        joints = [features_to_joints(m) for _, m in outs]
         return recognition(*judges, joints, [by_id[i].content or "" for i, _ in outs], style)
 
     rows = []

@@ -1,6 +1,6 @@
 """Which of a synthetic style's numbers the style judge reads: real renders with parts of the style removed.
 
-  python bench/bench_synth_style_cues.py --corpus SYNTH/corpus --base EVALS [--split val] [--styles strutting,sneaky]
+  python lab/synth_style_cues.py --corpus SYNTH/corpus --base EVALS [--split val] [--styles strutting,sneaky]
 
 Each ``neutral`` clip of the split is rendered again (``augment.synth.render``, the same spec: path, duration,
 phase) with one group of a style's numbers (``StyleParams``) kept or removed, and the synthetic style judge
@@ -22,13 +22,15 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # lab reuses the quality benches' loaders
 
-from bench_bandai2 import joints_of  # noqa: E402
 
 from motionaug.augment.corpus import Corpus  # noqa: E402
 from motionaug.augment.eval.evaluation import classify, load_classifiers  # noqa: E402
-from motionaug.augment.motion.features import extract_features  # noqa: E402
+from motionaug.augment.motion.features import (
+    extract_features,  # noqa: E402
+    features_to_joints,
+)
 from motionaug.augment.synth.animator import ClipSpec, render  # noqa: E402
 from motionaug.augment.synth.styles import NEUTRAL, STYLES, StyleParams  # noqa: E402
 
@@ -82,7 +84,7 @@ def variants(style: StyleParams) -> dict[str, StyleParams]:
 
 
 def judged(specs: list[ClipSpec], params: StyleParams, judge: Callable, labels: list[str]) -> dict[str, int]:
-    joints = [joints_of(extract_features(render(s, params).joints, source="cue render")) for s in specs]
+    joints = [features_to_joints(extract_features(render(s, params).joints, source="cue render")) for s in specs]
     predicted = np.bincount(judge(joints).argmax(1), minlength=len(labels))
     return {label: int(n) for label, n in zip(labels, predicted) if n}
 

@@ -1,6 +1,6 @@
 """Seconds per UMSD training step at chosen sizes, and where a step's time goes (torch.profiler).
 
-Usage: python bench/bench_umsd_profile.py --corpus CORPUS [--neutral normal] [--steps 6] [--threads 1]
+Usage: python lab/umsd_profile.py --corpus CORPUS [--neutral normal] [--steps 6] [--threads 1]
        [--profile] [key=value ...]
 
 ``key=value``: ``UmsdTrainConfig`` fields (e.g. ``max_frames=96 batch_size=6``). Every clip of ``CORPUS`` is used
@@ -14,15 +14,18 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import time
 from dataclasses import replace
 from pathlib import Path
 
 import torch
-from bench_pretrain import parse_sets
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # lab reuses the quality benches' loaders
 
 from motionaug.augment.corpus import Corpus
 from motionaug.augment.methods.umsd import UmsdTrainConfig, UmsdTrainer, prepare_data
+from motionaug.schemas.run_config import apply_overrides
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -35,7 +38,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("fields", nargs="*", help="UmsdTrainConfig key=value")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
-    fields = parse_sets(args.fields)
+    fields = apply_overrides({}, args.fields)
     config = UmsdTrainConfig(**fields)
     clips = [replace(c, style="neutral") if c.style == args.neutral else c for c in Corpus(args.corpus)]
     torch.manual_seed(0)

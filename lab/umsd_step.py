@@ -1,6 +1,6 @@
 """Seconds per UMSD training step for several training configs, measured in one run (same machine state).
 
-  python bench/bench_umsd_step.py --corpus SYNTH/corpus [--preset bandai] [--steps 30] [--threads 1]
+  python lab/umsd_step.py --corpus SYNTH/corpus [--preset bandai] [--steps 30] [--threads 1]
       --variant "skip=content w_dsc=0 lr=0.001" --variant "skip=content w_dsc=0 lr=0.001 synthetic_pairs=true w_spec=10"
 
 Each variant (``UmsdTrainConfig`` overrides on top of ``--preset``) prepares the corpus's train split (the
@@ -20,18 +20,20 @@ from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # lab reuses the quality benches' loaders
 
-from bench_pretrain import parse_sets  # noqa: E402
 from bench_umsd_quality import PRESETS, load_clips, splits  # noqa: E402
 
 from motionaug.augment.methods.umsd.training import UmsdTrainConfig, UmsdTrainer, prepare_data  # noqa: E402
+from motionaug.schemas.run_config import apply_overrides
 
 WARMUP = 5
 
 
 def time_variant(clips: list, preset: str, sets: str, steps: int, threads: int) -> dict[str, object]:
-    config = UmsdTrainConfig(**{**PRESETS[preset], "steps": steps, "threads": threads, **parse_sets(sets.split())})
+    config = UmsdTrainConfig(
+        **{**PRESETS[preset], "steps": steps, "threads": threads, **apply_overrides({}, sets.split())}
+    )
     start = time.perf_counter()
     data = prepare_data(clips, config)
     prepare_s = time.perf_counter() - start

@@ -1,7 +1,7 @@
 """Clean-ups of UMSD's outputs after sampling, scored without sampling again: the examples' amplitude and
 posture, the spectral ceiling and smoothing.
 
-  python bench/bench_umsd_rescore.py --corpus CORPUS --base BASE --work WORK --tag TAG --split val
+  python lab/umsd_rescore.py --corpus CORPUS --base BASE --work WORK --tag TAG --split val
       --variant SLACK:FROM_HZ:SMOOTH[:POSTURE[:AMPLITUDE]] [--variant ...]
 
 Reads ``WORK/<tag>-<split>.json`` and ``-outputs.npz`` of a bench_umsd_quality.py run made without clean-up
@@ -27,11 +27,10 @@ from typing import Any
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # lab reuses the quality benches' loaders
 from bench_umsd_quality import by_style, load_clips, score, splits  # noqa: E402
 
 from motionaug.augment.corpus import MotionClip  # noqa: E402
-from motionaug.augment.methods.base import TransferOutput  # noqa: E402
 from motionaug.augment.methods.common import trajectory_channels  # noqa: E402
 from motionaug.augment.methods.umsd import load_umsd  # noqa: E402
 from motionaug.augment.methods.umsd.method import (  # noqa: E402
@@ -41,6 +40,7 @@ from motionaug.augment.methods.umsd.method import (  # noqa: E402
     shaped,
     smoothed,
 )
+from motionaug.augment.outputs.shards import TransferOutput  # noqa: E402
 
 Variant = tuple[float, float, float, str, str]
 

@@ -1,6 +1,6 @@
 """Does a trained UMSD network use its noisy input? The diagnosis of bench/RESULTS.md section 13.3.
 
-Usage: python bench/bench_umsd_xt.py --model MODEL_DIR --corpus BANDAI2 [--neutral normal] [--clip ID]
+Usage: python lab/umsd_xt.py --model MODEL_DIR --corpus BANDAI2 [--neutral normal] [--clip ID]
        [--example ID] [--steps 10,100,500]
 
 For one content clip and one style example (default: the first `--neutral` val clip, the first train `elderly`
@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # lab reuses the quality benches' loaders
 from bench_umsd_quality import load_clips, splits  # noqa: E402
 
 from motionaug.augment.diffusion import NoiseSchedule, q_sample  # noqa: E402

@@ -1,12 +1,15 @@
 """Evaluation metrics as pure functions over numpy arrays or torch tensors.
 
 CRA/SRA (recognition accuracy), FMD (Frechet distance of classifier features), MPJPE, foot skating,
-foot-contact agreement, diversity and T2M-style retrieval R@k. Joint positions are in metres, Y up,
+foot-contact agreement, diversity, T2M-style retrieval R@k, and the Wilson interval every table's
+shares carry. Joint positions are in metres, Y up,
 floor at y = 0 (HumanML3D's extraction puts the lowest foot of a clip on the floor).
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from typing import Literal
 
 import numpy as np
@@ -233,3 +236,30 @@ def retrieval_r_at_k(
         rank = (dist < own).sum(axis=1)  # motions strictly closer than the caption's own
         hits.append(rank < k)
     return float(np.concatenate(hits).mean())
+
+
+def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """95% Wilson score interval of a proportion; it stays inside [0, 1] at 0% and 100%, unlike the normal one."""
+    if n == 0:
+        return (math.nan, math.nan)
+    p = successes / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def matched_fmd(feats_a: np.ndarray, feats_b: np.ndarray, seed: int) -> tuple[float, int]:
+    """FMD with both sets drawn without replacement to the smaller count, which it returns too.
+
+    FMD is biased by the sample count, so two rows are comparable only at the same count.
+    """
+    n = min(len(feats_a), len(feats_b))
+    rng = np.random.default_rng(seed)
+    a = np.asarray(feats_a)[rng.choice(len(feats_a), n, replace=False)]
+    b = np.asarray(feats_b)[rng.choice(len(feats_b), n, replace=False)]
+    return frechet_distance(a, b), n
+
+
+def mean_foot_skating(joints: Sequence[np.ndarray], skeleton: Skeleton, fps: float) -> float:
+    """``foot_skating_ratio`` averaged over clips of at least two frames."""
+    return float(np.mean([foot_skating_ratio(j, skeleton, fps) for j in joints if len(j) >= 2]))

@@ -1,6 +1,6 @@
 """Where UMSD's frame-to-frame shake comes from: one prediction from a noised true transfer, and the sampled outputs.
 
-  python bench/bench_umsd_shake.py --corpus SYNTH/corpus --work WORK --tag TAG --split val --style depressed
+  python lab/umsd_shake.py --corpus SYNTH/corpus --work WORK --tag TAG --split val --style depressed
       [--clips 16] [--steps 1,10,50,100,200,400,700,999]
 
 Reads ``WORK/<tag>-<split>.json`` and ``-outputs.npz`` (bench_umsd_quality.py on the synthetic corpus). For the
@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_umsd_motion import measures  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # lab reuses the quality benches' loaders
 from bench_umsd_quality import load_clips, splits  # noqa: E402
+from umsd_motion import measures  # noqa: E402
 
 from motionaug.augment.diffusion import NoiseSchedule, q_sample  # noqa: E402
 from motionaug.augment.methods.umsd import load_umsd  # noqa: E402

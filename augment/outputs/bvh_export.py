@@ -18,12 +18,11 @@ from pathlib import Path
 import numpy as np
 
 from motionaug.augment.corpus.humanml3d import check_id
-from motionaug.augment.eval.evaluation import read_run
 from motionaug.augment.motion.bvh import joints_to_bvh, read_bvh, write_bvh
+from motionaug.augment.motion.features import features_to_joints
 from motionaug.augment.outputs.run_dir import RunDir
 from motionaug.augment.outputs.shards import iter_shard_rows, row_motion
 from motionaug.augment.outputs.verify import verified_shards
-from motionaug.augment.render.previews import features_to_joints
 from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.skeleton import T2M
 
@@ -74,7 +73,7 @@ def write_clip_bvh(
 def export_bvh(run_dir: str | Path, out: str | Path, style: str | None = None) -> BvhExportSummary:
     """Write every stylized clip of a complete run (or of one ``style``) as ``out/<output_id>.bvh``."""
     run_dir, out = Path(run_dir), Path(out)
-    _, config = read_run(run_dir)
+    config = RunDir(run_dir).manifest().config
     styles = [s["name"] for s in config.get("styles", [])]
     if style is not None and style not in styles:
         raise MotionDataError("--style", f"run has no style {style!r}; its styles are {styles}")
@@ -86,7 +85,7 @@ def export_bvh(run_dir: str | Path, out: str | Path, style: str | None = None) -
         if style is not None and row["style"] != style:
             continue
         name = check_id(row["output_id"], f"output id in {run_dir}")
-        joints = features_to_joints(row_motion(row), T2M, f"stylized clip {name}")
+        joints = features_to_joints(row_motion(row), T2M, source=f"stylized clip {name}")
         error, exact = write_clip_bvh(out / f"{name}.bvh", joints, float(np.float32(row["fps"])))
         worst, files, with_positions = max(worst, error), files + 1, with_positions + exact
     if files == 0:
