@@ -16,11 +16,18 @@ the state dict), as the T2M evaluators use the dataset's Mean/Std.
 Variable lengths: padded frames are zeroed before every convolution and excluded from the temporal
 mean, so a padded clip gives exactly the output of the same clip alone (convolutions zero-pad too).
 No strides or normalisation across time, for the same reason.
+
+A classifier with ``in_channels`` set reads prepared per-frame channels ``(B, T, C)`` instead of joints (the
+held-out protocol's second judges, whose channels come from the features). With ``standardise="clip"`` each
+channel is standardised over the clip's own frames, its std floored at ``clip_std_floor`` x the channel's
+training-set std, so a per-channel change of mean and scale (what a moment-matching post-process does) cannot
+move the logits: the judge must read the motion's shape over time.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Literal
 
 import torch
 import torch.nn as nn
@@ -36,10 +43,13 @@ class ClassifierConfig:
     kernel: int = 5
     dropout: float = 0.1
     fps: float = 20.0  # turns per-frame displacements into m/s
+    in_channels: int | None = None  # None: reads joints (B, T, J, 3); else prepared channels (B, T, in_channels)
+    standardise: Literal["train", "clip"] = "train"  # by the training set's statistics, or over each clip
+    clip_std_floor: float = 0.1  # "clip": least std of a channel, x its training-set std
 
     @property
     def in_dim(self) -> int:
-        return 6 * self.n_joints + 3
+        return 6 * self.n_joints + 3 if self.in_channels is None else self.in_channels
 
 
 CLASSIFIER_SIZES: dict[str, dict[str, int | float]] = {
@@ -104,7 +114,12 @@ class MotionClassifier(nn.Module):
         self.classifier = nn.Linear(config.feat_dim, config.n_classes)
 
     def _check(self, joints: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
-        if joints.ndim != 4 or joints.shape[2] != self.config.n_joints:
+        if self.config.in_channels is not None:
+            if joints.ndim != 3 or joints.shape[-1] != self.config.in_channels:
+                raise ValueError(
+                    f"classifier: expected channels (B, T, {self.config.in_channels}), got {tuple(joints.shape)}"
+                )
+        elif joints.ndim != 4 or joints.shape[2] != self.config.n_joints:
             raise ValueError(
                 f"classifier: expected joints (B, T, {self.config.n_joints}, 3), got {tuple(joints.shape)}"
             )
@@ -114,11 +129,24 @@ class MotionClassifier(nn.Module):
             raise ValueError(f"classifier: mask {tuple(mask.shape)} does not match joints {tuple(joints.shape[:2])}")
         return mask.bool()
 
+    def _input(self, x: torch.Tensor) -> torch.Tensor:
+        """The per-frame channels ``(B, T, C)`` the network reads, before standardisation."""
+        return joints_to_evaluator_input(x, self.config.fps) if self.config.in_channels is None else x
+
+    def _standardised(self, x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        if self.config.standardise == "train":
+            return (x - self.input_mean) / self.input_std
+        keep = mask.to(x.dtype).unsqueeze(-1)  # (B, T, 1)
+        frames = keep.sum(dim=1, keepdim=True).clamp_min(1.0)
+        mean = (x * keep).sum(dim=1, keepdim=True) / frames
+        std = (((x - mean) ** 2 * keep).sum(dim=1, keepdim=True) / frames).sqrt()
+        return (x - mean) / torch.maximum(std, self.config.clip_std_floor * self.input_std) * keep
+
     @torch.no_grad()
     def set_input_stats(self, joints: torch.Tensor, mask: torch.Tensor | None = None, min_std: float = 1e-2) -> None:
         """Per-channel mean/std of the network input over the real frames of a (training) set."""
         mask = self._check(joints, mask)
-        x = joints_to_evaluator_input(joints, self.config.fps)[mask]  # (frames, C_in)
+        x = self._input(joints)[mask]  # (frames, C_in)
         self.input_mean.copy_(x.mean(dim=0))
         self.input_std.copy_(x.std(dim=0, unbiased=False).clamp_min(min_std))
 
@@ -126,7 +154,7 @@ class MotionClassifier(nn.Module):
         """Pooled penultimate features ``(B, feat_dim)``; padded frames have no influence."""
         mask = self._check(joints, mask)
         keep = mask.to(joints.dtype).unsqueeze(1)  # (B, 1, T)
-        x = (joints_to_evaluator_input(joints, self.config.fps) - self.input_mean) / self.input_std
+        x = self._standardised(self._input(joints), mask)
         h = self.input_proj(x.transpose(1, 2)) * keep  # (B, hidden, T); 1x1 conv, so masking here suffices
         for block in self.blocks:
             h = block(h, keep)

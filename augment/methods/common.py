@@ -161,13 +161,13 @@ def feet_channels() -> list[int]:
 
 
 def caption_text(clip: MotionClip) -> str:
-    """The caption a clip is conditioned on: its first whole-clip caption, else its first, else its content."""
+    """The caption a clip is conditioned on: its first whole-clip caption, else its first; never its labels."""
     for caption in clip.captions:
         if caption.whole_clip:
             return caption.text
     if clip.captions:
         return clip.captions[0].text
-    return f"a person does {clip.content.replace('_', ' ')}" if clip.content else "a person moves"
+    return "a person moves"
 
 
 def style_vocab(words: StyleWords, name: str) -> dict[str, Any]:

@@ -4,8 +4,8 @@
 reused while the corpus and the training config match; ``check_style`` refuses, before Ray starts, a style the
 network has not learnt; ``prepare`` records the style; ``load`` + ``transfer`` stylize whole clips offline with
 the recurrent layers run over each sequence at once (``motionaug stream`` runs the same network frame by frame).
-Content clips are taken as what their labels say: the style label as the source style (none: neutral, supp.
-C.4) and the content label for the neutral branch's initial state (none: the learned unknown-content state).
+Content clips reach the network without their labels: read as neutral (supp. C.4) with the learned
+unknown-content initial state, so a corpus without labels and a scored clip are treated alike.
 """
 
 from __future__ import annotations
@@ -118,15 +118,11 @@ class ErdStyleModel:
         results: list[TransferOutput | Reject] = []
         for i, clip in enumerate(clips):
             try:
-                source_style = self._name(clip.style)
-                content = clip.content if clip.content in self.net.config.contents else None
+                # A transferred clip's labels never reach the network (a user's corpus has none, and a scored
+                # clip's must not): it is read as neutral with the learned unknown-content initial state, where the
+                # paper (sec. 3.1) conditions that state on the content label.
                 (motion,) = transfer(
-                    self.net,
-                    [clip.motion],
-                    self._name(self.style),
-                    None if source_style == NEUTRAL else source_style,
-                    content,
-                    intensity=self.params.intensity,
+                    self.net, [clip.motion], self._name(self.style), None, None, intensity=self.params.intensity
                 )
                 captions = revised_texts(clip, self.spec.words, self.params.caption_variants, seed + i, self.vocab)
                 results.append(TransferOutput(source_id=clip.id, style=self.style, motion=motion, captions=captions))
