@@ -1,0 +1,83 @@
+"""The protocol's judges: what each reads, that the second style judge cannot be moved by the moment rule, and
+that trained judges save, load and read real held-out clips."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from motionaug.augment.corpus import Corpus
+from motionaug.augment.eval.judges import JUDGES, fit_judges, judge_input, load_judges, motion_channels
+from motionaug.augment.methods.umsd.method import with_amplitude, with_posture
+from motionaug.augment.motion.batch import pad_batch
+from motionaug.augment.motion.features import Normalizer
+from motionaug.augment.synth import generate_corpus
+from motionaug.models.evaluators import make_classifier
+from motionaug.schemas.skeleton import T2M
+
+FIXTURES = Path(__file__).resolve().parent / "fixtures" / "humanml3d"
+
+
+@pytest.fixture(scope="module")
+def corpus(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("judges") / "corpus"
+    generate_corpus(root, 48, seed=1, styles=["neutral", "proud", "old"], contents=["walk", "run"])
+    return root
+
+
+def moment_rule(content: np.ndarray, example: np.ndarray, reference: np.ndarray, norm: Normalizer) -> np.ndarray:
+    """Posture and amplitude from an example against its plain reference, applied to the content clip itself."""
+    c, e, r = (norm.normalize(x) for x in (content, example, reference))
+    shaped = with_posture(
+        with_amplitude(c, c, torch.from_numpy(e), torch.from_numpy(r), 0.25),
+        c,
+        torch.from_numpy(e),
+        torch.from_numpy(r),
+    )
+    return norm.denormalize(shaped)
+
+
+def test_judge_channels_are_facing_frame_positions_velocities_and_root_motion() -> None:
+    clip = np.load(FIXTURES / "new_joint_vecs" / "012314.npy")
+    style, content = motion_channels(clip, with_root=True), motion_channels(clip, with_root=False)
+    assert style.shape == (170, 6 * 22 + 4) and content.shape == (170, 6 * 22)
+    np.testing.assert_array_equal(style[:, : 6 * 22], content)
+    np.testing.assert_allclose(style[:, 1], clip[:, 3])  # the root's height
+    np.testing.assert_allclose(style[1:, 66:69], (style[1:, :3] - style[:-1, :3]) * 20.0, atol=1e-5)
+    assert judge_input("style", clip, 196).shape == (170, 22, 3)
+
+
+def test_the_second_style_judge_is_blind_to_the_moment_rule(corpus: Path) -> None:
+    """Setting channel means and variances from an example (the moment rule) moves judge 1, not judge 2."""
+    norm = Normalizer(np.load(FIXTURES / "Mean.npy"), np.load(FIXTURES / "Std.npy"))
+    content = np.load(FIXTURES / "new_joint_vecs" / "012314.npy")
+    clips = list(Corpus(corpus))
+    example = next(c.motion for c in clips if c.style == "old" and c.content == "walk")
+    reference = next(c.motion for c in clips if c.style == "neutral")
+    shaped = moment_rule(content, example, reference, norm)
+    assert np.abs(shaped - content).max() > 0.05  # the rule changes the clip
+    torch.manual_seed(0)
+    for name, moved in (("style_clip", False), ("style", True)):
+        width = {"style_clip": {"in_channels": 136, "standardise": "clip"}, "style": {}}[name]
+        judge = make_classifier(2, T2M.n_joints, "tiny", **width).eval()
+        judge.set_input_stats(*pad_batch([judge_input(name, c.motion, 196) for c in clips]))
+        before, after = (judge(*pad_batch([judge_input(name, m, 196)])) for m in (content, shaped))
+        change = float((before - after).abs().max())
+        assert (change > 1e-2) if moved else (change < 1e-4), (name, change)
+
+
+def test_judges_fit_save_load_and_report_held_out_accuracy(corpus: Path, tmp_path: Path) -> None:
+    train, test = list(Corpus(corpus, split="train")), list(Corpus(corpus, split="test"))
+    judges = fit_judges(train, tmp_path / "judges", epochs=3, size="tiny", held_out=test)
+    assert judges.info.trained_on == sorted(c.id for c in train)
+    assert set(judges.info.accuracy) == set(JUDGES) and all("all" in a for a in judges.info.accuracy.values())
+    loaded = load_judges(tmp_path / "judges")
+    for name in JUDGES:
+        pred, feats = judges.predict(name, [c.motion for c in test])
+        pred2, feats2 = loaded.predict(name, [c.motion for c in test])
+        np.testing.assert_array_equal(pred, pred2)
+        np.testing.assert_allclose(feats, feats2, atol=1e-6)
+    assert loaded.labels("style") == ["neutral", "old", "proud"]
