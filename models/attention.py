@@ -5,8 +5,7 @@ head size 32-128):
 
 - with a key-padding mask and no gradients, the encoder's fused fast path spends most of a forward in
   ``_masked_softmax`` (bf16); ``scaled_dot_product_attention`` with a broadcast (B, 1, 1, L) mask does not;
-- with gradients, the fused flash kernel's CPU backward is several times slower than a plain
-  matmul-softmax-matmul (bench/RESULTS.md times a prior training step both ways).
+- with gradients, the fused flash kernel's CPU backward is slower than a plain matmul-softmax-matmul.
 
 The modules (and so the state-dict keys, the official-checkpoint mapping and the LoRA adapters, which patch
 ``in_proj_weight``, ``out_proj``, ``linear1`` and ``linear2``) stay exactly those of ``nn.TransformerEncoder``;

@@ -59,7 +59,7 @@ class StyleErdConfig:
     att_hidden: int = 64  # MLP width of the attention branches
     # Output skip: x'_t = x_t + D(z'_t, S_hat). Not in the paper (its decoder emits the frame itself). At a CPU
     # budget of a few thousand steps the 32-d bottleneck and six stacked LSTMs are far from reconstructing a
-    # frame, so the transfer has no content to keep (bench/RESULTS.md section 12). With the skip, E -> R -> D
+    # frame, so the transfer has no content to keep. With the skip, E -> R -> D
     # only learns the style *offset* of each frame: the paper's residual idea (z' = r_0 + r_S) at the output.
     residual_output: bool = True
     attention: bool = True  # FT-Att (Eq. 1); False: Table 1's "w/o attention", a multi-class critic

@@ -159,7 +159,7 @@ class PretrainConfig(BaseModel):
                 "checkpoint_every": 20,
             },
             # small: a narrow prior (d=128) learns the synthetic corpus faster per CPU second than d=256; input
-            # perturbation (DDPM-IP) helps text-to-motion style recognition (bench/RESULTS.md has both figures)
+            # perturbation (DDPM-IP) raises text-to-motion style recognition for a little content recognition
             "small": {
                 "prior_steps": 3600,
                 "prior_latent_dim": 128,
