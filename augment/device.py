@@ -15,7 +15,7 @@ DEVICE_ENV = "MOTIONAUG_DEVICE"
 
 @lru_cache(maxsize=1)
 def cpu_has_bf16() -> bool:
-    """True when the CPU advertises native bf16 (AMX or AVX512-BF16), where bf16 matmuls beat fp32 (~3.5x on AMX)."""
+    """True when the CPU advertises native bf16 (AMX or AVX512-BF16), where bf16 matmuls beat fp32."""
     try:
         flags = Path("/proc/cpuinfo").read_text(encoding="utf-8", errors="replace")
     except OSError:

@@ -66,7 +66,7 @@ from motionaug.schemas.styles import StyleSpec
 RIC = feature_slices(T2M)["ric"]
 
 # Training presets (``UmsdTrainConfig`` fields). ``bandai``: the CPU preset chosen for a <= 45 min run on a shared
-# 2-core machine (see bench/RESULTS.md section 13 for its profile); ``tiny``: a seconds-long smoke.
+# 2-core machine (lab/NOTES.md section 13.1 has its profile); ``tiny``: a seconds-long smoke.
 PRESETS: dict[str, dict[str, Any]] = {
     "default": {},
     "bandai": {"max_frames": 96, "batch_size": 6, "lr": 3e-4, "log_every": 100},

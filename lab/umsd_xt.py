@@ -1,4 +1,4 @@
-"""Does a trained UMSD network use its noisy input? The diagnosis of bench/RESULTS.md section 13.3.
+"""Does a trained UMSD network use its noisy input? The diagnosis of lab/NOTES.md section 13.3.
 
 Usage: python lab/umsd_xt.py --model MODEL_DIR --corpus BANDAI2 [--neutral normal] [--clip ID]
        [--example ID] [--steps 10,100,500]

@@ -1,16 +1,11 @@
 """The forward pass of an ``nn.TransformerEncoder`` (post-norm, batch-first), with attention kernels picked for CPU.
 
-Why not call the encoder itself: on CPU, PyTorch's own paths are slow for our sequence lengths (<= 197 tokens,
-head size 32-128):
-
-- with a key-padding mask and no gradients, the encoder's fused fast path spends most of a forward in
-  ``_masked_softmax`` (bf16); ``scaled_dot_product_attention`` with a broadcast (B, 1, 1, L) mask does not;
-- with gradients, the fused flash kernel's CPU backward is several times slower than a plain
-  matmul-softmax-matmul (bench/RESULTS.md times a prior training step both ways).
-
-The modules (and so the state-dict keys, the official-checkpoint mapping and the LoRA adapters, which patch
-``in_proj_weight``, ``out_proj``, ``linear1`` and ``linear2``) stay exactly those of ``nn.TransformerEncoder``;
-only the order of the maths is ours. ``tests/test_mdm.py`` checks it equals ``encoder(x, src_key_padding_mask=...)``.
+Why not call the encoder itself: on CPU, PyTorch's own paths are slow for our lengths (<= 197 tokens, heads of
+32-128). With a key-padding mask and no gradients its fused fast path spends most of a forward in
+``_masked_softmax`` (bf16), where ``scaled_dot_product_attention`` with a broadcast (B, 1, 1, L) mask does not; with
+gradients the fused flash kernel's CPU backward is slower than a plain matmul-softmax-matmul. The modules (so the
+state-dict keys, the official-checkpoint mapping and the LoRA adapters) stay exactly those of
+``nn.TransformerEncoder``; only the order of the maths is ours, and ``tests/test_mdm.py`` checks the two agree.
 """
 
 from __future__ import annotations

@@ -1,27 +1,12 @@
 """Content and style classifiers for evaluation (CRA, SRA) and the features FMD is computed on.
 
-Both are temporal convolution networks over joint positions. Input choice (documented because
-FMD values depend on it): joints ``(B, T, J, 3)`` in metres, Y up, as HumanML3D's ``recover_from_ric``
-gives them (already canonicalised: the clip starts at the origin facing +Z). Per frame the network sees
-
-* root-relative positions: every joint minus the root's ground-plane (x, z) position, heights kept;
-* their velocities in m/s (zero at frame 0), where much of a style lives;
-* the root velocity in m/s (x, y, z; zero at frame 0), so speed and turning are visible.
-
-Velocities are scaled by ``fps`` so they are on the scale of positions (about 1); per-frame
-displacements (a few cm) would otherwise be drowned by pose differences. The classifier then
-standardises each input channel with statistics of its training set (``set_input_stats``, saved in
-the state dict), as the T2M evaluators use the dataset's Mean/Std.
-
-Variable lengths: padded frames are zeroed before every convolution and excluded from the temporal
-mean, so a padded clip gives exactly the output of the same clip alone (convolutions zero-pad too).
-No strides or normalisation across time, for the same reason.
-
-A classifier with ``in_channels`` set reads prepared per-frame channels ``(B, T, C)`` instead of joints (the
-held-out protocol's second judges, whose channels come from the features). With ``standardise="clip"`` each
-channel is standardised over the clip's own frames, its std floored at ``clip_std_floor`` x the channel's
-training-set std, so a per-channel change of mean and scale (what a moment-matching post-process does) cannot
-move the logits: the judge must read the motion's shape over time.
+Temporal convolution networks over joints ``(B, T, J, 3)`` (metres, Y up, as ``recover_from_ric`` gives them), read
+as ``joints_to_evaluator_input`` documents, since FMD depends on it: root-relative positions, their velocities and
+the root velocity in m/s, each channel standardised with its training set's statistics (saved in the state dict).
+With ``in_channels`` a classifier reads prepared channels ``(B, T, C)`` instead (the protocol's second judges), and
+``standardise="clip"`` standardises each over the clip's own frames, so per-channel means and scales cannot move it.
+Padded frames are zeroed before every convolution and left out of the temporal mean (no strides, no normalisation
+across time), so a padded clip scores exactly as the same clip alone.
 """
 
 from __future__ import annotations

@@ -1,18 +1,11 @@
 """Low-rank adapters (LoRA, Hu et al. 2022) so a per-style fine-tune ships a few percent of the model's bytes.
 
-Every adapted weight reads as ``W + (alpha / rank) * B @ A`` with ``A`` (rank, in) and ``B`` (out, rank),
-``B`` zero at start so the adapted model equals the base. Two mechanisms, because
-``nn.MultiheadAttention`` and the encoder layer's fast path read weights directly instead of calling
-``forward``:
-
-- ``nn.Linear`` targets (``linear1``, ``linear2``, ``out_proj``, any other Linear) are replaced by
-  ``LoRALinear``, whose ``forward`` adds the low-rank path and whose ``weight``/``bias`` properties
-  expose the effective weight to code that reads it (MHA's ``out_proj``, the fused fast path).
-- ``in_proj_weight`` of ``nn.MultiheadAttention`` gets a parametrization (``LoRAInProj``) that adds one
-  adapter per q/k/v block, so both the fast and the slow attention paths see it.
-
-Everything else in the model is frozen by ``apply_lora``; ``merge_lora`` folds the deltas back and
-restores the plain module structure (and the base state-dict keys) for inference.
+Every adapted weight reads as ``W + (alpha / rank) * B @ A``, ``B`` zero at start so the adapted model equals the
+base. Two mechanisms, because ``nn.MultiheadAttention`` and the encoder layer's fast path read weights directly
+instead of calling ``forward``: ``nn.Linear`` targets become ``LoRALinear``, whose ``weight``/``bias`` properties
+expose the effective weight to such code, and ``in_proj_weight`` gets a parametrization (``LoRAInProj``) with one
+adapter per q/k/v block, seen by both attention paths. ``apply_lora`` freezes everything else; ``merge_lora`` folds
+the deltas back and restores the plain modules (and the base state-dict keys) for inference.
 """
 
 from __future__ import annotations

@@ -1,16 +1,9 @@
 """Load an official MDM checkpoint (GuyTevet/motion-diffusion-model, HumanML3D 'trans_enc') into ``models.mdm.MDM``.
 
-Key map (official -> ours); the official forward runs sequence-first, ours batch-first, which changes no
-parameter shape:
-- ``input_process.poseEmbedding.{weight,bias}``        -> same name ((d, 263), (d,))
-- ``embed_timestep.time_embed.{0,2}.{weight,bias}``     -> same name (Linear-SiLU-Linear, (d, d))
-- ``embed_text.{weight,bias}``                          -> same name ((d, 512) for CLIP ViT-B/32)
-- ``seqTransEncoder.layers.N.*`` (self_attn.in_proj_*, self_attn.out_proj.*, linear1/2.*, norm1/2.*)
-                                                        -> same name (nn.TransformerEncoderLayer, post-norm, gelu)
-- ``output_process.poseFinal.{weight,bias}``            -> same name ((263, d), (263,))
-Skipped: ``clip_model.*`` (the frozen text encoder lives elsewhere), ``sequence_pos_encoder.pe`` and
-``embed_timestep.sequence_pos_encoder.pe`` (the sinusoidal table, (5000, 1, d); ours is recomputed and
-checked equal to it).
+Our modules keep the official parameter names and shapes (the official forward runs sequence-first, ours
+batch-first, which changes no shape), so the map is the identity on ``input_process``, ``embed_timestep``,
+``embed_text``, ``seqTransEncoder.layers.N`` and ``output_process``. Skipped: ``clip_model.*`` (the frozen text
+encoder lives elsewhere) and the sinusoidal position tables, which ours recomputes and checks equal to them.
 """
 
 from __future__ import annotations
@@ -60,7 +53,17 @@ def _check_pe(model: MDM, key: str, value: Tensor) -> None:
 
 def load_official_mdm_state_dict(model: MDM, state_dict: Mapping[str, object], strict: bool = True) -> LoadReport:
     """Copy an official MDM state dict into ``model``; raise MotionDataError on shape mismatch (and, if strict,
-    on missing or unexpected keys). ``module.`` prefixes (DataParallel) are stripped."""
+    on missing or unexpected keys). ``module.`` prefixes (DataParallel) are stripped.
+
+    Key map (official -> ours)::
+
+        input_process.poseEmbedding.{weight,bias}      -> same name ((d, 263), (d,))
+        embed_timestep.time_embed.{0,2}.{weight,bias}  -> same name (Linear-SiLU-Linear, (d, d))
+        embed_text.{weight,bias}                       -> same name ((d, 512) for CLIP ViT-B/32)
+        seqTransEncoder.layers.N.*                     -> same name (nn.TransformerEncoderLayer, post-norm, gelu)
+        output_process.poseFinal.{weight,bias}         -> same name ((263, d), (263,))
+        skipped: clip_model.*, sequence_pos_encoder.pe, embed_timestep.sequence_pos_encoder.pe ((5000, 1, d))
+    """
     source = {k.removeprefix("module."): v for k, v in _unwrap(state_dict).items()}
     ours = model.state_dict()
     loaded, skipped, unexpected, new_state = [], [], [], {}

@@ -1,14 +1,10 @@
 """Motion encoder that maps a motion into the caption embedding space (Hu et al., CGF 2024, sec. 3.4.1).
 
-It reads motions through the *same* embedding layer as the denoiser's input layer, so the semantic
-loss that compares a motion with its caption (Eq. 8) shapes a representation the denoiser also uses.
-A learnable pooling token is prepended to the sequence; after N transformer-encoder layers its output
-is projected to the text embedding size.
-
-Sharing: pass the denoiser's input layer, ``MotionEncoder(config, mdm.input_process)`` (batch-first
-``(B, T, F) -> (B, T, d)``; ``config.d_model`` must equal ``MDMConfig.latent_dim``, and the named
-sizes match MDM's). A layer that expects sequence-first input ``(T, B, F) -> (T, B, d)``, as in the
-official MDM code, is supported with ``embed_layout="tbd"``.
+It reads motions through the *same* embedding layer as the denoiser's input layer, so the semantic loss that
+compares a motion with its caption (Eq. 8) shapes a representation the denoiser also uses. A learnable pooling token
+is prepended; after N transformer-encoder layers its output is projected to the text embedding size. Share the layer
+with ``MotionEncoder(config, mdm.input_process)`` (batch-first; ``config.d_model`` must equal
+``MDMConfig.latent_dim``); a sequence-first layer, as in the official MDM code, works with ``embed_layout="tbd"``.
 """
 
 from __future__ import annotations

@@ -1,22 +1,12 @@
 """Selective scan (Mamba's S6, Gu & Dao 2023) for CPU in plain PyTorch, and the Mamba mixers built on it.
 
-UMSD's Motion Style Mamba denoiser (Qian et al., ACM MM 2025, Sec. 3.3) runs a forward SSM Phi+ and a backward SSM
-Phi- over the same causal-conv features and sums them (Eq. 7). This module provides the scan both need, a
-Mamba mixer (``MambaLayer``) and the bidirectional layer (``BiMamba``).
-
-The recurrence, per batch b, channel d and state n (Gu & Dao 2023, Alg. 2, discretised with zero-order hold on A and
-Euler on B):
-
-    h_t = exp(delta_t A) * h_{t-1} + delta_t B_t u_t,        y_t = <C_t, h_t> + D u_t   (then y_t * silu(z_t)).
-
-Why this design. A is diagonal per (d, n), so Mamba-2's chunk matmuls do not apply, and the log-space chunk form
-exp(S_t) * cumsum(exp(-S_s) b_s), S = cumsum(delta A), overflows once a chunk decays by more than ~exp(-88) in
-float32 (the bounded form exp(S_t - S_s) needs a chunk x chunk matrix per state element). Here a chunk of steps
-makes its decays, inputs, read-outs and gradient reductions as a few batched ops, and only the state update is
-sequential: one in-place multiply-add per step over the whole (B, N, D) state, which stays in cache. The only
-exponentials are exp(delta A) <= 1 (delta >= 0, A <= 0), so nothing overflows at any length. The backward re-runs
-each chunk from its saved entering state instead of storing all B*D*N*L states (like the CUDA kernel), so memory is
-O(B D N L / chunk). Channels are independent, so each worker thread scans a slice of them (``_ScanWorkers``).
+UMSD's Motion Style Mamba denoiser (Qian et al., ACM MM 2025, Sec. 3.3) sums a forward and a backward SSM over the
+same causal-conv features (Eq. 7); this module gives the scan, ``MambaLayer`` and ``BiMamba``. Recurrence (Alg. 2):
+``h_t = exp(delta_t A) h_{t-1} + delta_t B_t u_t``, ``y_t = <C_t, h_t> + D u_t``. Why this design: A is diagonal, so
+Mamba-2's chunk matmuls do not apply, and the log-space chunk form overflows float32 over long decays. Here a chunk
+does its decays, inputs, read-outs and gradient reductions as batched ops and only the state update is sequential;
+the only exponentials are exp(delta A) <= 1, so nothing overflows. The backward re-runs each chunk from its saved
+entering state (memory O(B D N L / chunk), like the CUDA kernel); channels are split across threads (``_ScanWorkers``).
 """
 
 from __future__ import annotations

@@ -1,26 +1,12 @@
 """Style-ERD (Tao et al., CVPR 2022): online, frame-by-frame motion style transfer, plus its two critics.
 
-One frame in, one frame out. Paper section numbers refer to "Style-ERD: Responsive and Coherent Online
-Motion Style Transfer"; "supp. A" is its implementation-details appendix.
-
-- ``Encoder``     (sec. 3.1) two-layer MLP: frame + source-style one-hot + content one-hot -> latent z_t.
-- ``Recurrent``   (sec. 3.1) neutral LSTM branch r_0 plus one residual LSTM branch per non-neutral style,
-                  ``z'_t = r_0(z_t) + r_S(z_t)``, with learned initial states (r_0's chosen by content, one per
-                  style branch) and sec. 4.4 blending/intensity as a mixture over the styles.
-- ``Decoder``     (sec. 3.1) four MLP layers conditioned on the target style, back to one frame; with
-                  ``residual_output`` (default, not in the paper) it emits an offset added to the input frame and
-                  also sees the source style and content (see ``StyleErdConfig.residual_output``).
-- ``ErdNetwork``  the generator: ``forward`` runs whole sequences (one C++ LSTM call per branch), ``step``
-                  runs one frame with an explicit ``ErdState``; the two agree to float rounding.
-- ``FtAttDiscriminator`` (sec. 3.1, Eq. 1) 1-D temporal convs over a window of positions and velocities,
-                  feature x temporal attention from the style and content labels.
-- ``ContentClassifier``  (sec. 3.1 "content supervision") temporal convs with instance norm; its feature maps
-                  are the phi of the perceptual loss (Eq. 7).
-- ``StyleClassifier``    optional style supervision (not in the paper), frozen like D_C.
-
-Frames are HumanML3D 263-d features *normalised* by the corpus Mean/Std that the network carries as buffers
-(``mean``/``std``); ``ErdNetwork.normalize`` / ``denormalize`` convert. Style index 0 is always ``neutral``
-(branch r_0); content index ``len(contents)`` is the learned "unknown content" slot for unlabelled input.
+One frame in, one frame out. Sections refer to "Style-ERD: Responsive and Coherent Online Motion Style Transfer"
+("supp. A": its implementation appendix). The generator ``ErdNetwork`` is ``Encoder`` -> ``Recurrent`` (a neutral
+LSTM branch plus one residual branch per style, sec. 3.1 and 4.4) -> ``Decoder``; ``forward`` runs whole sequences
+and ``step`` one frame, and the two agree to float rounding. The critics are ``FtAttDiscriminator`` (Eq. 1) and
+``ContentClassifier`` (the perceptual loss's phi, Eq. 7), with an optional ``StyleClassifier``. Frames are HumanML3D
+features normalised by the corpus Mean/Std the network carries as buffers; style index 0 is always ``neutral``, and
+content index ``len(contents)`` is the learned "unknown content" slot for unlabelled input.
 """
 
 from __future__ import annotations
@@ -59,7 +45,7 @@ class StyleErdConfig:
     att_hidden: int = 64  # MLP width of the attention branches
     # Output skip: x'_t = x_t + D(z'_t, S_hat). Not in the paper (its decoder emits the frame itself). At a CPU
     # budget of a few thousand steps the 32-d bottleneck and six stacked LSTMs are far from reconstructing a
-    # frame, so the transfer has no content to keep (bench/RESULTS.md section 12). With the skip, E -> R -> D
+    # frame, so the transfer has no content to keep. With the skip, E -> R -> D
     # only learns the style *offset* of each frame: the paper's residual idea (z' = r_0 + r_S) at the output.
     residual_output: bool = True
     attention: bool = True  # FT-Att (Eq. 1); False: Table 1's "w/o attention", a multi-class critic

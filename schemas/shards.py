@@ -1,15 +1,10 @@
 """What a run writes: the Arrow schema of output shards and the JSON records beside them.
 
-Shards are plain Arrow columns (no extension types) so pyarrow, pandas and duckdb read them as-is, one file
-or the whole ``shards/`` folder (``pd.read_parquet(run / "shards")``; ``style`` is dictionary-encoded so the
-``style=<name>`` folders, which pyarrow reads as a hive partition, merge with the column).
-``motion`` is flattened row-major: ``np.asarray(row.motion).reshape(row.n_frames, row.n_feats)``.
-Run folder layout (``motionaug.augment.outputs.run_dir.RunDir`` reads and writes it)::
-
-    config.resolved.json  plan.json  manifest.json  _SUCCESS
-    styles/<style>/...  styles/<style>.done            (fine-tuned artefact + its marker)
-    shards/style=<style>/unit-00003.parquet  _unit-00003.done   (markers start with "_": dataset readers skip them)
-    rejects/style=<style>/unit-00003.jsonl
+Shards are plain Arrow columns (no extension types) so pyarrow, pandas and duckdb read them as-is, one file or the
+whole ``shards/`` folder (``pd.read_parquet(run / "shards")``; ``style`` is dictionary-encoded so the
+``style=<name>`` folders, read as a hive partition, merge with the column). ``motion`` is flattened row-major:
+``np.asarray(row.motion).reshape(row.n_frames, row.n_feats)``. ``motionaug.augment.outputs.run_dir.RunDir`` reads
+and writes the run folder and documents its layout.
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 Thin commands over ``augment.eval.expansion``: ``split`` makes the base corpus lacking some styles (A), ``truth`` the
 base plus the true stylized clips (C); ``merge`` A plus a ``motionaug run`` over A's ``expand`` split (B);
 ``motionaug pretrain`` trains a prior on each; ``score`` samples every held-out caption and judges the motion.
-docs/expansion.md walks through it; bench/bench_expansion.py runs all of it in one command.
+docs/expansion.md walks through it, including the one command that runs all of it.
 """
 
 from __future__ import annotations

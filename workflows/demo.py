@@ -30,8 +30,8 @@ DONE = "_SUCCESS"
 DEMO_METHODS = ("onthefly", "stats")
 # Per base-model size: overrides of its pre-training preset and the on-the-fly method's params. `small` is the
 # demo's share of the 10-minute budget on 2 cores: the prior and the motion encoder stop earlier than
-# `motionaug pretrain` would, and each style's fine-tune has a step budget (bench/RESULTS.md has the
-# figures). `tiny` is a smoke run of the same path (seconds of training, untrained-looking output).
+# `motionaug pretrain` would, and each style's fine-tune has a step budget, so the whole demo fits. `tiny` is a
+# smoke run of the same path (seconds of training, untrained-looking output).
 DEMO_PROFILES: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
     "small": ({"prior_steps": 1400, "encoder_steps": 400}, {"max_steps": 40}),
     "tiny": ({}, {"max_steps": 2, "pair_steps": 10, "batch_size": 4}),

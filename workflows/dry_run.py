@@ -33,9 +33,9 @@ class Rate:
     artefact_bytes: int | None = None  # one style's published artefact; None: not measured
 
 
-# The benchmarks' rates. stats: bench/RESULTS.md "Scale: a HumanML3D-size run". onthefly: section 7 (fine-tune s per
-# style on Bandai-2), section 6 (transfer, 1 worker, `small` prior) and section 4 (pre-training, `small`). erd:
-# section 12 (training; stream step x ~100 frames a clip). umsd: section 13.
+# Each method's costs as its benchmarks took them on the project's 2-core VM (one CPU per task): prepare is one
+# style's prepare task, transfer one task's throughput, train the once-per-run training. onthefly: the `small` prior;
+# erd: its stream step times the frames of a typical clip. Update a rate when the method's cost changes.
 RATES: dict[str, Rate] = {
     "stats": Rate(prepare_s=0.02, transfer_clips_per_s=380.0, artefact_bytes=8_000),
     "onthefly": Rate(prepare_s=25.0, transfer_clips_per_s=26.3, train_s=800.0),
@@ -43,9 +43,9 @@ RATES: dict[str, Rate] = {
     "umsd": Rate(prepare_s=0.04, transfer_clips_per_s=0.67),
 }
 # Shard bytes per output frame (Parquet + zstd, 263-dim float32 rows with captions and scores): zstd does better the
-# more rows a shard holds. Fit to stats shards of 4, 40 and 256 clips: 1,095, 853 and 709 bytes ("Scale" section).
+# more rows a shard holds, so the size is a log-linear fit to stats shards of a few sizes.
 SHARD_BYTES_PER_FRAME = (1240.0, -220.0)  # a + b * log10(rows), kept within [700, 1100]
-# Ray's cost per task beyond its own work (scheduling, arguments, marker; "Scale" section).
+# Ray's cost per task beyond its own work (scheduling, arguments, marker), from the same scale runs.
 TASK_OVERHEAD_S = 0.05
 
 

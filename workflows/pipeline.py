@@ -1,18 +1,12 @@
 """The run's stages, datatrove-style: each a small class with one contract, and no idea where it runs.
 
 A stage names its units of work (``keys``), the resources one needs, the unit of an earlier stage it waits for
-(``depends_on``), whether a unit is already done (``done``: its marker verified against the checksum it
-records) and how to do one (``run``: returns the record the executor publishes as the unit's marker). The
-executor (``workflows.executor``) schedules and owns completion; it never names a method or a stage.
-
-    plan      -> plan.json (units of clip ids; the content pool the methods learn from)
-    train     -> the method's once-per-run models (on-the-fly: base models), when the method trains
-    prepare   -> styles/<style>/ + styles/<style>.done          (one task per style)
-    transfer  -> shards/style=<s>/unit-<n>.parquet + .done      (one task per unit x style, after its style)
-    manifest  -> manifest.json + _SUCCESS
-
-Provenance: an artefact marker records the checksum of the once-per-run models it was made from, and a shard
-marker that of its style's artefact (and of those models); a unit whose inputs changed since is redone.
+(``depends_on``), whether a unit is done (``done``: its marker verified against the checksum it records) and how to
+do one (``run``: returns the record published as the unit's marker). The executor schedules and owns completion and
+never names a method or a stage. Stages: ``plan`` (units of clip ids, the content pool), ``train`` (once-per-run
+models, when the method trains), ``prepare`` (one task per style), ``transfer`` (one task per unit x style) and
+``manifest``. An artefact marker records the checksum of the models it was made from and a shard marker that of its
+style's artefact, so a unit whose inputs changed is redone.
 """
 
 from __future__ import annotations

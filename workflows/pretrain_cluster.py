@@ -1,18 +1,12 @@
 """Data-parallel pre-training on Ray Train: ``motionaug pretrain --workers N`` on a local Ray or a cluster.
 
-Each Ray Train worker runs the one-process ``pretrain`` with its place in the run (``Parallel``) on its own
-device (``ray.train.torch.get_device()``: the GPU Ray Train assigned it, else CPU): every worker
-draws the same seeded global batch of ``batch_size`` clips and trains on its equal slice, and DDP averages the
-gradients (gloo on CPU, NCCL on GPU). The steps are those one process takes with the same global batch, so the
-worker count changes the speed, not the model (up to float reduction order).
-
-Checkpoints stay the project's own (``OUT/checkpoints``: safetensors weights, optimizer and generator states,
-written by rank 0), because they resume bit for bit and do not depend on the worker count: a run started on
-4 workers resumes on 1 process or on 8. That folder is also Ray Train's experiment folder, and every checkpoint
-is reported there with ``ray.train.report(checkpoint=..., NO_UPLOAD)``, so Ray Train tracks it without copying.
-A worker that dies makes Ray Train restart the group (``max_failures``), and the restarted workers, like a
-re-run of the command, resume from the last checkpoint. Each launch starts a fresh Ray Train run state (the
-project rotates step folders that an old state would still list). ``OUT`` must be on storage every node sees.
+Each worker runs the one-process ``pretrain`` on its own device, draws the same seeded global batch, trains on its
+equal slice, and DDP averages the gradients: the worker count changes the speed, not the model (up to float reduction
+order). Checkpoints stay the project's own (``OUT/checkpoints``, written by rank 0), because they resume bit for bit
+whatever the worker count; that folder is also Ray Train's experiment folder, where each checkpoint is reported
+without copying. A dead worker makes Ray Train restart the group, which resumes from the last checkpoint like a
+re-run of the command; each launch starts a fresh Ray Train run state, since the project rotates step folders an old
+state would still list. ``OUT`` must be on storage every node sees.
 """
 
 from __future__ import annotations

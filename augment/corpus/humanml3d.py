@@ -1,13 +1,11 @@
 """The HumanML3D folder layout, read lazily clip by clip and written atomically file by file.
 
-Layout: ``new_joint_vecs/<id>.npy`` (T, D) float32, ``texts/<id>.txt`` caption lines, split files
-``<split>.txt`` (one id per line; an ``M`` prefix marks a mirrored copy), ``Mean.npy``/``Std.npy``.
-motionaug adds one optional sidecar the reference loaders ignore: ``labels.jsonl`` (one JSON object per
-clip: id, content, style, meta) so content/style labels survive the layout.
-Conventions follow the reference loader (MDM ``Text2MotionDatasetV2``): a caption with a non-zero
-(start, end) span becomes its own clip cut from frames ``[int(start*fps), int(end*fps))``, and the
-length filter applies to the whole file first, then to each cut. Unlike the reference, cuts get a
-deterministic id (:func:`span_id`) and captions sharing one span share one cut.
+Layout: ``new_joint_vecs/<id>.npy`` (T, D) float32, ``texts/<id>.txt`` caption lines, split files ``<split>.txt``
+(an ``M`` prefix marks a mirrored copy), ``Mean.npy``/``Std.npy``, and motionaug's optional ``labels.jsonl`` (id,
+content, style, meta per clip), which reference loaders ignore, so labels survive the layout. Conventions follow
+MDM's ``Text2MotionDatasetV2``: a caption with a non-zero (start, end) span becomes its own clip, frames
+``[int(start*fps), int(end*fps))``, and the length filter applies to the whole file, then to each cut. Unlike the
+reference, a cut gets a deterministic id (:func:`span_id`) and captions sharing a span share one cut.
 """
 
 from __future__ import annotations

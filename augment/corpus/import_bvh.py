@@ -1,19 +1,12 @@
 """Turn a folder of BVH files into a corpus: retarget to t2m, resample to 20 fps, extract features, caption.
 
-Labels come from options, or from Bandai-style file names and JSON; captions are written from them
-(``augment.text.label_captions``). Every file that cannot be used becomes a reject with its reason; the others
-are written. Options make the result training-ready the way the on-the-fly paper prepares Bandai-2 (sec. 4.2;
-``docs/bandai.md``):
-
-- ``max_frames``: a take longer than this is cut into ``ceil(T / max_frames)`` consecutive pieces of equal length
-  (differing by at most one frame), never padded, no frame dropped; each piece is a clip of its own with its own
-  whole-clip captions, named by its span like the HumanML3D reader's cuts (``<take>_<start cs>_<end cs>``).
-- ``val_takes``/``test_takes``: whole takes go to one split, decided per (content, style) pair before any BVH is
-  read: in take-number order, the last ``test_takes`` are test, the ``val_takes`` before them val, the rest train.
-- ``mean_std``: ``Mean.npy``/``Std.npy`` from the train split only (``compute_mean_std``).
-- clips shorter than MDM's 40-frame minimum stay in the corpus and are listed in ``too_short_for_mdm.txt``.
-- the data licence goes to ``corpus.json`` (``licence``), ``NOTICE`` and a copy of the source's ``LICENSE``;
-  ``corpus_licence(root)`` reads it back.
+Labels come from options, or from Bandai-style file names and JSON; captions are written from them. A file that
+cannot be used becomes a reject with its reason. Options make the result training-ready the way the on-the-fly paper
+prepares Bandai-2 (sec. 4.2): long takes cut into equal pieces (never padded, no frame dropped), whole takes given to
+val/test per (content, style) pair before any BVH is read (so a take's split never depends on another file),
+``Mean.npy``/``Std.npy`` from the train split only, clips under MDM's 40-frame minimum kept and listed in
+``too_short_for_mdm.txt``, and the data licence carried into ``corpus.json``, ``NOTICE`` and a copy of ``LICENSE``.
+``docs/bandai.md`` gives the exact rules.
 """
 
 from __future__ import annotations

@@ -1,14 +1,11 @@
 """Sampling loops wiring a denoiser to a schedule: DDPM ancestral and DDIM, with small hooks.
 
-Conventions (shared by every loop here):
-- ``steps`` respaces the training schedule (MDM ``space_timesteps``: 20 -> timesteps 0, 50, ..., 950).
-- ``start_step=n`` runs only the last ``n`` steps: ``x_start`` is noised (q_sample) to respaced index ``n - 1``
-  and denoised down to index 0 (``schedule.start_step_for`` converts a training timestep K to n).
-- The network always receives training timesteps (``schedule.timesteps[i]``), as MDM's respacing wrapper does.
-- The last step returns the x0 prediction itself (alpha_bar_prev = 1 there, so this is exactly the posterior
-  mean and the DDIM update), which keeps inpainted channels bit-exact at the end.
-Hooks: ``inpaint`` (replace chosen channels/frames of every x0 prediction by a reference and add no noise
-there, Hu et al. 2024 Eqs. 3-5), ``guidance_scale`` (classifier-free guidance), ``progress`` (per-step callback).
+``steps`` respaces the training schedule as MDM's ``space_timesteps`` does, and the network always receives training
+timesteps; ``start_step=n`` noises ``x_start`` to respaced index ``n - 1`` and runs only the last ``n`` steps
+(``schedule.start_step_for`` converts a training timestep). The last step returns the x0 prediction itself (exactly
+the posterior mean there), which keeps inpainted channels bit-exact. Hooks: ``inpaint`` (channels/frames of every
+x0 prediction replaced by a reference, no noise added there; Hu et al. 2024 Eqs. 3-5), ``guidance_scale``
+(classifier-free guidance), ``progress`` (per-step callback).
 """
 
 from __future__ import annotations

@@ -1,21 +1,12 @@
 """Judging a finished run: per-clip scores and per-style summaries of its stylized clips (no Ray).
 
-What is measured, per stylized clip (``scores.parquet``, one row per ``output_id``):
-
-* the method's own scores, where it gives them (``method_style_score``, ``method_content_score``);
-* with the base models' classifiers: predicted content/style label and the probability of the *target*
-  label (the source clip's content; the run's style);
-* foot skating of the output (and of its content clip, as a reference), foot-contact agreement with the
-  content clip (HumanML3D contact rule on both);
-* MPJPE to the paired ground truth when the corpus is synthetic (the content clip's ``ClipSpec`` rendered
-  in the target style).
-
-``content_score`` is what ``motionaug export --min-content-score`` filters on: the method's content score
-when it has one, else the content classifier's probability of the right content, else empty.
-
-Per style and overall: SRA, CRA, FMD against the real clips of that style (style-classifier features),
-diversity, and the means of the per-clip figures. Anything that cannot be measured stays ``None`` and
-the reason goes to ``notes`` (the report prints them) rather than a made-up number.
+Per stylized clip (``scores.parquet``, one row per ``output_id``): the method's own scores where it gives them; the
+base models' predicted content and style and the probability of the target labels; foot skating and foot-contact
+agreement against the content clip; MPJPE to the paired ground truth when the corpus is synthetic. ``content_score``
+(what ``motionaug export --min-content-score`` filters on) is the method's content score, else the classifier's
+probability of the right content. Per style and overall: SRA, CRA, FMD against real clips of the style, diversity
+and the means of the per-clip figures. What cannot be measured stays ``None`` and its reason goes to ``notes``, so
+the report never shows a made-up number.
 """
 
 from __future__ import annotations

@@ -1,18 +1,11 @@
 """BVH motion files: a strict reader, forward kinematics, and writers (generic and t2m joints).
 
-Conventions, chosen to match Blender's and MotionBuilder's reading of the format:
-
-- Rotation channels are intrinsic rotations applied in channel order: ``Zrotation Xrotation
-  Yrotation`` means ``R = Rz @ Rx @ Ry`` acting on column vectors, angles in degrees.
-- Position channels (on the root or on any other joint) *replace* the joint's OFFSET on the axes
-  they name; joints without them use the OFFSET. The Bandai Namco files confirm this: their
-  non-root joints carry position channels equal to their offsets.
-- End Sites are not joints here: they are dropped from the joint arrays and kept in
-  ``BvhMotion.end_sites`` (parent joint index -> offset) so a writer can restore them.
-- Quaternions are (w, x, y, z), the layout HumanML3D uses.
-
-The reader is strict on purpose: a truncated or garbled file raises ``MotionDataError`` naming
-the file and the first problem (with its line number) instead of yielding a silently wrong clip.
+Conventions match Blender's and MotionBuilder's reading of the format: rotation channels are intrinsic, applied in
+channel order (``Zrotation Xrotation Yrotation`` is ``R = Rz @ Rx @ Ry`` on column vectors, degrees); position
+channels, on any joint, replace the OFFSET on the axes they name (the Bandai Namco files rely on it); End Sites are
+not joints but are kept in ``BvhMotion.end_sites`` so a writer can restore them; quaternions are (w, x, y, z), as in
+HumanML3D. The reader is strict on purpose: a truncated or garbled file raises ``MotionDataError`` naming the file
+and the first problem with its line number, instead of yielding a silently wrong clip.
 """
 
 from __future__ import annotations

@@ -1,13 +1,10 @@
 """HumanML3D motion features: extraction from joints, recovery to joints, mirroring, Mean/Std.
 
-Extraction reproduces HumanML3D's ``process_file`` (``motion_representation.ipynb``) with its
-``common/skeleton.py`` IK, including the frame-0 root reset the dataset was made with, so features
-computed here line up with the released ``new_joint_vecs``. The layout per frame is
-``[root_rot_vel 1 | root_lin_vel 2 (xz) | root_y 1 | ric 3(J-1) | rot 6(J-1) | local_vel 3J | feet 4]``.
-
-Known reference quirk kept on purpose: the root rotation velocity is ``arcsin`` of the per-frame yaw
-quaternion's y, which flips sign when the smoothed facing crosses straight backwards (Z-), so a clip
-that turns through Z- does not round-trip exactly. The dataset has the same property.
+Extraction reproduces HumanML3D's ``process_file`` with its ``common/skeleton.py`` IK, frame-0 root reset included,
+so features computed here line up with the released ``new_joint_vecs``. Per frame: ``[root_rot_vel 1 | root_lin_vel
+2 (xz) | root_y 1 | ric 3(J-1) | rot 6(J-1) | local_vel 3J | feet 4]``. A reference quirk is kept on purpose: the root
+rotation velocity is ``arcsin`` of the per-frame yaw quaternion's y, which flips sign when the smoothed facing
+crosses straight backwards (Z-), so such a clip does not round-trip exactly; the dataset has the same property.
 """
 
 from __future__ import annotations

@@ -1,13 +1,10 @@
 """Foot locking in feature space: move the root so that a planted foot stays where it was planted.
 
 A transfer that keeps the content's root path but changes the legs (a shorter stride, a shuffle) makes planted feet
-slide: the path says the body travels further than the legs push it. Here the root's step of each frame transition
-is corrected by the horizontal slide of the planted toe, so that toe stays put and the body travels what its legs
-walk. Poses (root-relative positions, rotations) are untouched; the root velocity, and the local joint velocities
-that include it, are rewritten consistently.
-
-A toe is planted over a transition when it is below ``height`` in both frames (the rule of
-``augment.metrics.foot_skating_ratio``); when both are, the lower one is held.
+slide: the path says the body travels further than the legs push it. So the root's step over each frame transition
+is corrected by the horizontal slide of the planted toe (below ``height`` in both frames, the rule of
+``augment.metrics.foot_skating_ratio``; the lower toe when both are). Poses are untouched; the root velocity and the
+local joint velocities that include it are rewritten consistently.
 """
 
 from __future__ import annotations

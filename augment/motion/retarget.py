@@ -1,30 +1,12 @@
 """Retarget BVH motion onto the t2m (HumanML3D) joints by a joint map, and resample it in time.
 
-Retargeting here is position based: every target joint is a source joint, or a weighted blend of
-source joints (an affine combination; weights sum to 1), in metres with Y up. HumanML3D's feature
-extraction then re-derives rotations, facing and floor height from these positions, so no bone
-rotations need transferring.
-
-A joint map is a small JSON or YAML file, for example::
-
-    {
-      "version": 1,
-      "name": "my-rig",
-      "skeleton": "t2m",            # target skeleton (schemas.skeleton), default t2m
-      "scale": 0.01,                # source units -> metres (0.01 for centimetres)
-      "up_axis": "+y",              # source up axis: +x -x +y -y +z -z (rotated onto +Y)
-      "handedness": "right",        # "left" for left-handed sources (X is negated)
-      "joints": {                   # every target joint, exactly once
-        "pelvis": "Hips",
-        "spine1": {"Hips": 0.4, "Spine": 0.6},
-        ...
-      }
-    }
-
-After conversion a character facing +Z must have its left side on +X (t2m's convention: the
-left hip is joint 1 and HumanML3D's facing rule ``forward = up x (right - left)``). A map whose
-left/right names are swapped, or a left-handed source marked "right", yields mirrored motion.
-See docs/retargeting.md.
+Retargeting is position based: every target joint is a source joint or an affine blend of source joints (weights sum
+to 1), in metres with Y up. HumanML3D's feature extraction re-derives rotations, facing and floor height from these
+positions, so no bone rotations need transferring. A joint map (JSON or YAML: ``version``, ``name``, ``skeleton``,
+``scale``, ``up_axis``, ``handedness``, ``joints``; docs/retargeting.md has an example) names every target joint once.
+After conversion a character facing +Z must have its left side on +X (t2m's left hip is joint 1 and HumanML3D's
+facing rule is ``forward = up x (right - left)``): a map with left/right swapped, or a left-handed source marked
+"right", yields mirrored motion.
 """
 
 from __future__ import annotations

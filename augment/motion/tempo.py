@@ -1,13 +1,11 @@
 """Tempo: how fast a motion cycles, how a style changes it, and retiming a clip to a new tempo.
 
-Styles change timing as much as posture: a depressed or old walk cycles slower than a neutral one, a
-childlike one faster. A diffusion transfer that keeps the content's trajectory (Hu et al., sec. 7.1) keeps
-the content's clock too, so this module measures the style's tempo from its examples and retimes the
-content before the transfer adds the posture.
-
-Tempo of a style = (cycle period of comparable neutral motions) / (cycle period of the style's examples):
-below 1 the style is slower. The period is the lag of the strongest repeat of the root-relative joint
-positions (their autocorrelation), the standard way to find the pitch of a periodic signal.
+Styles change timing as much as posture: a depressed or old walk cycles slower than a neutral one, a childlike one
+faster. A diffusion transfer that keeps the content's trajectory (Hu et al., sec. 7.1) keeps the content's clock too,
+so this module measures the style's tempo from its examples and retimes the content before the transfer adds the
+posture. Tempo = (cycle period of comparable neutral motions) / (cycle period of the style's examples), below 1
+slower; a period is the lag of the strongest repeat in the autocorrelation of the root-relative joint positions, the
+standard way to find the pitch of a periodic signal.
 """
 
 from __future__ import annotations

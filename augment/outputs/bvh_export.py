@@ -1,13 +1,10 @@
 """A run's stylized clips as BVH files on the t2m skeleton, for animation tools (Blender, MotionBuilder).
 
-Features -> joint positions (``recover_from_ric``) -> ``augment.motion.bvh.joints_to_bvh``, one file per clip
-named ``<output_id>.bvh``. Output ids come from shard data, so each is checked to be a plain file name
-before it is used as one.
-
-A BVH of rotations alone reproduces only rigid motion. Generated clips are not rigid (``recover_from_ric``
-gives positions, and a model's bone lengths drift), so when the rigid fit misses a joint by more than
-``tolerance``, the file is rewritten with the same rotations plus per-joint position channels (the
-MotionBuilder layout) that carry the clip's own bone vectors: then every joint lands where the clip has it.
+Features -> joint positions (``recover_from_ric``) -> ``augment.motion.bvh.joints_to_bvh``, one ``<output_id>.bvh``
+per clip; output ids come from shard data, so each is checked to be a plain file name first. Rotations alone
+reproduce only rigid motion, and generated clips are not rigid (positions from ``recover_from_ric``, bone lengths
+that drift), so when the rigid fit misses a joint by more than ``tolerance`` the file also carries per-joint position
+channels (the MotionBuilder layout) with the clip's own bone vectors: then every joint lands where the clip has it.
 """
 
 from __future__ import annotations

@@ -1,13 +1,11 @@
 """A finished run as a training set: the original corpus plus its stylized clips, in one of two layouts.
 
-``humanml3d``: the folder the standard loaders read (MDM ``Text2MotionDatasetV2`` conventions): clips in
-``new_joint_vecs/``, revised captions with lemma/POS tokens in ``texts/``, split files. Stylized copies
-of TRAIN clips go to ``train.txt``/``train_val.txt``/``all.txt`` only, never to val or test (that would
-leak test content into training); copies of val/test clips are left out. Mean/Std are recomputed from
-the exported train split (streaming) or kept from the source corpus.
-``parquet``: one merged dataset in the corpus Arrow schema (``schemas/corpus.py``).
-Both are written into a temporary folder renamed into place, so an export is all or nothing; exporting
-again replaces an earlier export (recognised by its ``export.json``) and gives the same bytes.
+``humanml3d``: the folder MDM's ``Text2MotionDatasetV2`` reads (``new_joint_vecs/``, revised captions with lemma/POS
+tokens in ``texts/``, split files). Stylized copies of train clips go to the train split files only; copies of
+val/test clips are left out, since they would leak test content into training. Mean/Std are recomputed from the
+exported train split or kept from the source. ``parquet``: one merged dataset in the corpus Arrow schema
+(``schemas/corpus.py``). Both are written into a temporary folder renamed into place, so an export is all or
+nothing; exporting again replaces an earlier export (known by its ``export.json``) and gives the same bytes.
 """
 
 from __future__ import annotations

@@ -1,17 +1,9 @@
 """One run folder, read and written through one type by the pipeline, evaluation, export and previews.
 
-Layout (the records are the pydantic models of ``motionaug.schemas.shards``)::
-
-    config.resolved.json  plan.json  manifest.json  _SUCCESS  _LOCK (while a run writes it)
-    trained/...                                      (the method's once-per-run artefact, when it has one)
-    styles/<style>/...  styles/<style>.done          (a style's artefact + its marker)
-    shards/style=<style>/unit-00003.parquet  _unit-00003.done   (markers start with "_": dataset readers skip them)
-    rejects/style=<style>/unit-00003.jsonl
-
-A unit of work is done when its marker exists and the checksum in it matches what it names; anything else is
-redone under the same name. Records are published with fsync (file, then folder): a marker never outlives what it
-names across a power loss. A record of another format ``version`` is refused, never silently redone over.
-``_LOCK`` (``run_lock.RunLock``) says which process writes the folder.
+A unit of work is done when its marker exists and the checksum in it matches what it names; anything else is redone
+under the same name. Records are published with fsync (file, then folder), so a marker never outlives what it names
+across a power loss. A record of another format ``version`` is refused, never silently redone over. ``_LOCK``
+(``run_lock.RunLock``) says which process writes the folder. ``RunDir`` documents the layout.
 """
 
 from __future__ import annotations
@@ -72,7 +64,16 @@ CONTENT_SCORE = "content_score"
 
 
 class RunDir:
-    """Paths and records of one run folder."""
+    """Paths and records of one run folder.
+
+    Layout (the records are the pydantic models of ``motionaug.schemas.shards``)::
+
+        config.resolved.json  plan.json  manifest.json  _SUCCESS  _LOCK (while a run writes it)
+        trained/...                                      (the method's once-per-run artefact, when it has one)
+        styles/<style>/...  styles/<style>.done          (a style's artefact + its marker)
+        shards/style=<style>/unit-00003.parquet  _unit-00003.done   (markers start with "_": dataset readers skip them)
+        rejects/style=<style>/unit-00003.jsonl
+    """
 
     def __init__(self, root: str | Path) -> None:
         self.root = Path(root)

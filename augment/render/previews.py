@@ -1,15 +1,11 @@
 """Motion previews: stick-figure animations (GIF, MP4) and key-pose contact sheets.
 
-People judge a style transfer by looking at it, so a run must be able to show a content clip beside
-its stylized version without a display or a 3D toolkit. Everything is headless: each call builds
-its own ``matplotlib.figure.Figure`` on an Agg canvas (never pyplot), so importing or rendering
-leaves matplotlib's global state alone. The 3D view is our own small pinhole camera projected onto
-2D axes: that is several times faster than ``mplot3d`` and lets one figure per panel be reused,
-with only the artists' data changing per frame.
-
-Conventions: joints are (T, J, 3) in metres, Y up, the figure facing +Z at frame 0 (HumanML3D).
-The default camera stands in front of the figure, to its left, so the figure's left side appears on
-the right of the image, as when facing a person (no mirroring).
+People judge a style transfer by looking at it, so a run must be able to show a content clip beside its stylized
+version without a display or a 3D toolkit. Everything is headless: each call builds its own ``Figure`` on an Agg
+canvas (never pyplot), leaving matplotlib's global state alone. The 3D view is our own small pinhole camera on 2D
+axes, faster than ``mplot3d`` and reusable across frames (only the artists' data change). Joints are (T, J, 3) in
+metres, Y up, facing +Z at frame 0 (HumanML3D); the default camera stands in front of the figure, to its left, so
+the figure's left side appears on the right of the image, as when facing a person (no mirroring).
 """
 
 from __future__ import annotations

@@ -1,14 +1,11 @@
 """Captions rewritten for a stylized clip: old style words out, the new style in, tokens kept valid.
 
-The seed paper's released code revises HumanML3D captions by inserting the style word after each verb
-found in the lemma/POS tokens. This module does that and two other phrasings (adjective on the subject
-noun, trailing phrase) so an expanded corpus does not repeat one template.
-
-A caption is handled as a list of words, each with the text before it (spaces, punctuation) and its
-``lemma/POS`` token. Only alphabetic words carry tokens, as in HumanML3D (its tokenizer drops hyphens,
-then skips punctuation, numbers and clitics such as ``'s``), so the token list stays aligned with
-``caption_words(text)``. Captions without tokens (or whose tokens do not line up with the text) are
-tagged by a small rule-based lexicon instead of spaCy, which is not a dependency.
+The seed paper's code revises HumanML3D captions by inserting the style word after each verb found in the lemma/POS
+tokens; this module does that and two other phrasings (adjective on the subject noun, trailing phrase) so an
+expanded corpus does not repeat one template. A caption is a list of words, each with the text before it and its
+``lemma/POS`` token; only alphabetic words carry tokens, as in HumanML3D, so the tokens stay aligned with
+``caption_words(text)``. Captions without usable tokens are tagged by a small rule-based lexicon instead of spaCy,
+which is not a dependency.
 """
 
 from __future__ import annotations

@@ -1,26 +1,12 @@
 """Captions a person would write for a (content, style) label pair, in HumanML3D's caption format.
 
-Labelled motion capture (Bandai Namco datasets 1 and 2) has no text, only ``content`` and ``style`` labels. The
-on-the-fly paper (Hu et al., sec. 4.2) annotates Bandai-2 "with a simple text description based on the content and
-style labels", e.g. "a person is running, depressed". This module writes several such captions per clip, each with
-HumanML3D's ``lemma/POS`` tokens (only NOUN and VERB are lemmatised, as HumanML3D's ``process_text`` does, so
-"a person is walking" is ``a/DET person/NOUN is/AUX walk/VERB``):
-
-- content: a table of verb phrases per content label (``CONTENT_PHRASES``), written in the third person
-  ("walks and turns right") and turned progressive on demand ("is walking and turning right");
-- style: a table of words per style label (``LABEL_STYLES``): an adjective ("an elderly person walks"), an adverb
-  where English has a natural one ("walks energetically"), trailing phrases ("like an old person", and always
-  "in a(n) ADJ way") and, for states that read well after a comma, the paper's form ("a person is running,
-  exhausted.");
-- the neutral style (``normal``) is left out of the text: "a person walks forward." HumanML3D, which the base models
-  are trained on, describes neutral motion without style words, and the on-the-fly method builds its neutral prompts
-  by removing style words (paper sec. 3.2, "or simply remove the adverb"), so an unmarked caption is what "neutral"
-  means to the models; "in a normal way" would also be a phrase no style vocabulary removes when the caption is
-  revised into a style. The label itself stays in the corpus's labels sidecar.
-
-Every caption lines up one token per word with ``caption_revision.caption_words``, so the on-the-fly caption revision
-(``revise_caption``) can insert style words after the verbs; ``neutralising_vocab()`` lets it also remove the words
-this module puts in (including the comma form, which its attributive-adjective rule alone would keep).
+Labelled motion capture (Bandai Namco datasets 1 and 2) has only ``content`` and ``style`` labels; the on-the-fly
+paper (Hu et al., sec. 4.2) annotates Bandai-2 "with a simple text description based on the content and style
+labels". This module writes several such captions per clip, with HumanML3D's ``lemma/POS`` tokens, from a phrase
+table per content (``CONTENT_PHRASES``) and a word table per style (``LABEL_STYLES``: adjective, adverb, trailing
+phrase, the paper's comma form). The neutral style is left out of the text, as HumanML3D describes neutral motion
+and the on-the-fly method builds neutral prompts by removing style words (paper sec. 3.2). Tokens line up one per
+word with ``caption_revision.caption_words``, and ``neutralising_vocab()`` lets the revision remove these words.
 """
 
 from __future__ import annotations

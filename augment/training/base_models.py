@@ -1,17 +1,9 @@
 """The pre-trained models every style-transfer method stands on, as one folder of files.
 
-Layout of a base-models folder (written by ``augment.training.pretrain``)::
-
-    base.json                      BaseModelsInfo: configs, label lists, corpus fingerprint
-    prior.safetensors              MDM denoiser (the T2M diffusion prior)
-    motion_encoder.safetensors     motion -> text-embedding space (its own copy of the prior's input layer)
-    content_classifier.safetensors evaluator: what is done
-    style_classifier.safetensors   evaluator: how it is done
-    Mean.npy, Std.npy              the feature normalisation the models were trained with
-    text_encoder.safetensors       CLIP text tower, when ``text_encoder`` is "clip" (an imported MDM prior)
-    bpe_simple_vocab_16e6.txt.gz   its tokenizer vocabulary
-
-Weights are safetensors only: loading never unpickles.
+A base-models folder (written by ``augment.training.pretrain``; ``BaseModels`` documents its files) holds the T2M
+diffusion prior, the motion encoder, the content and style classifiers that act as evaluators, the feature
+normalisation they were trained with and, for an imported MDM prior, its CLIP text tower. Weights are safetensors
+only, so loading never unpickles.
 """
 
 from __future__ import annotations
@@ -71,7 +63,19 @@ class BaseModelsInfo(BaseModel):
 
 @dataclass
 class BaseModels:
-    """Loaded base models. ``text_encoder`` is built on first use (not every caller needs it)."""
+    """Loaded base models. ``text_encoder`` is built on first use (not every caller needs it).
+
+    The folder's files::
+
+        base.json                      BaseModelsInfo: configs, label lists, corpus fingerprint
+        prior.safetensors              MDM denoiser (the T2M diffusion prior)
+        motion_encoder.safetensors     motion -> text-embedding space (its own copy of the prior's input layer)
+        content_classifier.safetensors evaluator: what is done
+        style_classifier.safetensors   evaluator: how it is done
+        Mean.npy, Std.npy              the feature normalisation the models were trained with
+        text_encoder.safetensors       CLIP text tower, when ``text_encoder`` is "clip" (an imported MDM prior)
+        bpe_simple_vocab_16e6.txt.gz   its tokenizer vocabulary
+    """
 
     info: BaseModelsInfo
     prior: MDM

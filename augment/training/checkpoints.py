@@ -1,14 +1,9 @@
 """Training checkpoints a stopped pretraining resumes from, bit for bit.
 
-Layout under a checkpoint root, one folder per stage::
-
-    <stage>/step_000120/<module>.safetensors   weights (safetensors: never unpickled)
-    <stage>/step_000120/state.pt               optimizer state and RNG states (tensors only)
-    <stage>/latest.json                        StageCheckpoint: which step folder is current, written last
-
-``state.pt`` is written with ``torch.save`` and read back only with ``torch.load(weights_only=True)``,
-which refuses anything but tensors and plain containers. ``latest.json`` is replaced atomically after the
-step folder is complete, so a run killed mid-write resumes from the previous checkpoint.
+Per stage, one folder per saved step holds the weights (safetensors, never unpickled) and ``state.pt`` (optimizer
+and RNG states, read back only with ``torch.load(weights_only=True)``, which refuses anything but tensors and plain
+containers); ``<stage>/latest.json`` (``StageCheckpoint``) names the current step folder and is replaced atomically
+after that folder is complete, so a run killed mid-write resumes from the previous checkpoint.
 """
 
 from __future__ import annotations

@@ -1,15 +1,11 @@
 """The evaluation classifiers (content, style): training and inference helpers, and their artefact.
 
-The evaluators are an artefact of their own and score every method: ``motionaug pretrain`` writes them to
-``<base models>/evaluators/`` (``--evaluators-only``: only them, for methods that need no prior), ``motionaug
-evaluate`` and the benchmarks read them from there. No method trains against them (a method's own classifier,
-such as Style-ERD's perceptual-loss network, is a different network). Layout: ``evaluators.json``
-(``EvaluatorsInfo``) beside ``content_classifier.safetensors`` and ``style_classifier.safetensors``.
-
-Data is either one tuple of tensors ``(joints (N, T, J, 3), mask (N, T), labels (N,))``, shuffled into
-mini-batches here, or any iterable of such batches (e.g. a ``DataLoader``) re-iterated every epoch. Data may stay
-on CPU: each batch moves to the model's device, and shuffling draws from a CPU generator, so a seed picks the same
-batches on every device.
+The evaluators are an artefact of their own and score every method: ``motionaug pretrain`` writes them to ``<base
+models>/evaluators/`` (``evaluators.json`` beside the two classifiers' weights; ``--evaluators-only`` for methods
+that need no prior), and ``motionaug evaluate`` and the benchmarks read them there. No method trains against them.
+Data is one tuple ``(joints (N, T, J, 3), mask (N, T), labels (N,))``, shuffled into mini-batches here, or any
+iterable of such batches re-iterated every epoch. Data may stay on CPU: each batch moves to the model's device and
+shuffling draws from a CPU generator, so a seed picks the same batches on every device.
 """
 
 from __future__ import annotations

@@ -1,16 +1,12 @@
 """Base models around the official MDM prior (GuyTevet/motion-diffusion-model, HumanML3D ``trans_enc``).
 
-The released prior replaces pre-training stage a (25 h 51 min on an RTX 3090 Ti in Hu et al. 2024, Table 1).
-What is still trained here: the motion encoder into CLIP ViT-B/32's text space, which MDM conditions on
-(stage b, semantic loss of sec. 3.4.1), and the evaluators the corpus has labels for (stage c). HumanML3D has
-no content or style labels: without them no classifier is trained and outputs are judged by the motion encoder's
-cosine to their original caption (content_score) and to their styled caption (style_score); classifier scores
-(CRA, SRA, FMD) then need evaluators from a labelled corpus (``motionaug pretrain --evaluators-only``).
-``notes`` in base.json says which case applies.
-
-The prior only understands motions normalised with the statistics it was trained with (HumanML3D's
-Mean.npy/Std.npy; the checkpoint holds none): every model here normalises with those, and base.json records
-where they came from and whether the corpus's own statistics differ.
+The released prior replaces pre-training stage a, the costliest (Hu et al. 2024, Table 1). Still trained here: the
+motion encoder into CLIP ViT-B/32's text space, which MDM conditions on (stage b), and the evaluators the corpus has
+labels for (stage c). HumanML3D has no content or style labels, so then no classifier is trained: outputs are judged
+by the motion encoder's cosine to their original and styled captions, and CRA, SRA and FMD need evaluators from a
+labelled corpus (``motionaug pretrain --evaluators-only``); ``notes`` in base.json says which case applies. The prior
+only understands motions normalised with HumanML3D's Mean/Std (the checkpoint holds none), so every model here
+normalises with those, and base.json records where they came from and whether the corpus's own differ.
 """
 
 from __future__ import annotations

@@ -1,19 +1,12 @@
 """Pretraining the base models on a corpus: the T2M prior, the motion encoder, the evaluators.
 
-Three stages, in order, each checkpointed and resumable (``augment.training.checkpoints``):
-
-a. ``prior``: MDM predicting x0, masked MSE plus MDM's geometric losses, classifier-free condition dropout
-   (inside MDM), AdamW with warm-up and cosine decay, bf16 autocast for the network on CUDA and on CPUs with
-   bf16 units.
-b. ``motion_encoder``: reads motions through the prior's (frozen) input layer and learns to land on the
-   caption embedding (semantic loss, Hu et al. 2024 sec. 3.4.1).
-c. ``evaluators``: content and style classifiers on joint positions, with held-out accuracy.
-
-Every random draw comes from seeded generators whose states are checkpointed, so a run stopped and
-resumed ends with the same weights as one that never stopped. The device (``pick_device``: CUDA when present)
-is chosen once per run; data, draws and initial weights are made on CPU and moved there, so a seed means the
-same batches, noise and initialisation on every device. The result is a ``BaseModels`` folder (weights saved
-from CPU); ``ensure_base_models`` reuses one whose corpus fingerprint and config hash match.
+Three stages, in order, each checkpointed and resumable: (a) ``prior``, MDM predicting x0 with masked MSE plus MDM's
+geometric losses, condition dropout, AdamW with warm-up and cosine decay, bf16 autocast where the hardware has it;
+(b) ``motion_encoder``, through the prior's frozen input layer onto the caption embedding (semantic loss, Hu et al.
+2024 sec. 3.4.1); (c) ``evaluators``, content and style classifiers with held-out accuracy. Every random draw comes
+from checkpointed seeded generators and is made on CPU, then moved to the device chosen once per run, so a resumed
+run ends with the weights of one that never stopped and a seed means the same batches, noise and initialisation on
+every device. ``ensure_base_models`` reuses a folder whose corpus fingerprint and config hash match.
 """
 
 from __future__ import annotations
@@ -159,7 +152,7 @@ class PretrainConfig(BaseModel):
                 "checkpoint_every": 20,
             },
             # small: a narrow prior (d=128) learns the synthetic corpus faster per CPU second than d=256; input
-            # perturbation (DDPM-IP) helps text-to-motion style recognition (bench/RESULTS.md has both figures)
+            # perturbation (DDPM-IP) raises text-to-motion style recognition for a little content recognition
             "small": {
                 "prior_steps": 3600,
                 "prior_latent_dim": 128,

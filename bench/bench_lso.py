@@ -1,0 +1,303 @@
+"""Leave-style-out (LSO): styles the trained parts never saw, learnt from k examples, judged on held-out takes.
+
+    python bench/bench_lso.py setup  --corpus runs/bandai2 --kind bandai2 --work WORK
+    python bench/bench_lso.py run    --corpus runs/bandai2 --kind bandai2 --work WORK --fold fold1 --row ROW --split val
+    python bench/bench_lso.py gather --kind bandai2 [--split test]
+
+``setup`` fixes the example draws (3 per style, k = 1 and 3, train takes, disjoint) for every style of every fold
+and fits the judges on the train split without any draw's takes; both are written before any row runs. A ``run``
+unit is one (corpus, fold, row, split): the held-out ``normal`` takes of the split go into each of the fold's styles
+for each draw and k, and the per-clip judge readings are written to ``bench/lso/`` (committed). Rows: ``content``
+(the untouched clip), ``moments`` (the moment rule on the content clip, no network: the control of that step),
+and the methods through ``motionaug run`` with trained parts fitted on the corpus without the fold's styles.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from motionaug.augment.corpus import Corpus
+from motionaug.augment.corpus.clip import MotionClip
+from motionaug.augment.corpus.style_sets import write_without_styles
+from motionaug.augment.eval.judges import JUDGES, fit_judges, load_judges
+from motionaug.augment.eval.protocol import (
+    LSO_FOLDS,
+    ExampleDraws,
+    TrainView,
+    blind,
+    check_held_out,
+    draw_examples,
+    fold_of,
+    take_of,
+)
+from motionaug.augment.io import atomic_save_npy, atomic_write_text
+from motionaug.augment.methods.umsd.method import nearest_root_motion, with_amplitude, with_posture
+from motionaug.augment.metrics import matched_fmd, mean_foot_skating
+from motionaug.augment.motion.features import Normalizer, features_to_joints
+from motionaug.augment.outputs.shards import iter_shard_rows, row_motion
+from motionaug.schemas.run_config import load_run_config
+from motionaug.schemas.skeleton import T2M
+from motionaug.workflows.ray_executor import execute_run
+
+REPO = Path(__file__).resolve().parents[1]
+RESULTS = REPO / "bench" / "lso"
+NEUTRAL = {"bandai2": "normal", "synthetic": "neutral"}
+CONFIGS = {"bandai2": "bandai2-{method}.yaml", "synthetic": "{method}-synthetic.yaml"}
+DRAWS, K_MAX = 3, 3
+
+
+def commit() -> str:
+    return subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True).stdout.strip()
+
+
+def log(message: str) -> None:
+    print(f"[{time.strftime('%H:%M:%S')}] {message}", file=sys.stderr, flush=True)
+
+
+def all_styles(kind: str) -> list[str]:
+    return [s for fold in LSO_FOLDS[kind] for s in fold.held_out]
+
+
+def draws_path(kind: str) -> Path:
+    return RESULTS / f"{kind}-draws.json"
+
+
+def read_draws(kind: str) -> ExampleDraws:
+    return ExampleDraws.model_validate_json(draws_path(kind).read_text(encoding="utf-8"))
+
+
+def examples_of(draws: ExampleDraws, style: str, draw: int, k: int) -> list[str]:
+    """Draw ``draw``'s first ``k`` takes: the k = 1 example is the first of its k = 3 draw."""
+    return draws.draws[style][draw][:k]
+
+
+def scored_clips(corpus: Path, kind: str, split: str) -> list[MotionClip]:
+    return [c for c in Corpus(corpus, split=split) if c.style == NEUTRAL[kind]]
+
+
+# ---- setup: draws and judges, before any row ---------------------------------------------------------------
+
+
+def setup(args: argparse.Namespace) -> None:
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    scored = [c.id for split in ("val", "test") for c in Corpus(args.corpus, split=split)]
+    view = TrainView(args.corpus, scored)
+    if not draws_path(args.kind).is_file():
+        draws = draw_examples(view, all_styles(args.kind), k=K_MAX, n_draws=DRAWS, seed=args.seed)
+        draws.write(draws_path(args.kind))
+        log(f"draws written to {draws_path(args.kind)}")
+    draws = read_draws(args.kind)
+    judges_dir = args.work / "judges"
+    if not (judges_dir / "judges.json").is_file():
+        train = [c for c in view if take_of(c.id) not in draws.takes()]
+        held_out = list(Corpus(args.corpus, split="test"))
+        log(f"fitting the judges on {len(train)} train clips ({len(draws.takes())} example takes left out)")
+        torch.set_num_threads(args.threads)
+        judges = fit_judges(train, judges_dir, epochs=args.judge_epochs, seed=args.seed, held_out=held_out)
+        summary = {
+            "commit": commit(),
+            "train_clips": len(train),
+            "epochs": args.judge_epochs,
+            "test_accuracy": judges.info.accuracy,
+        }
+        atomic_write_text(RESULTS / f"{args.kind}-judges.json", json.dumps(summary, indent=1) + "\n")
+
+
+# ---- rows ------------------------------------------------------------------------------------------------------
+
+Transfers = dict[tuple[str, int, int], list[tuple[str, np.ndarray]]]
+"""(style, draw, k) -> (source id, output features) of every transfer."""
+
+
+def moment_row(args: argparse.Namespace, fold_corpus: Path, draws: ExampleDraws, styles: list[str]) -> Transfers:
+    """The moment rule on each content clip: posture and amplitude of its k examples against each example's
+    nearest plain train clip by root motion (the same reference rule as the shipped shaper), no network."""
+    norm = Normalizer(np.load(fold_corpus / "Mean.npy"), np.load(fold_corpus / "Std.npy"))
+    plain = {c.id: c.motion for c in Corpus(fold_corpus, split="train") if c.style == NEUTRAL[args.kind]}
+    originals = {c.id: c for c in Corpus(args.corpus, split="train")}
+    out: Transfers = {}
+    for style in styles:
+        for draw in range(DRAWS):
+            for k in args.k:
+                examples = [originals[i].motion for i in examples_of(draws, style, draw, k)]
+                example = torch.from_numpy(np.concatenate([norm.normalize(e) for e in examples]))
+                references = [nearest_root_motion(e, plain)[1] for e in examples]
+                reference = torch.from_numpy(np.concatenate([norm.normalize(r) for r in references]))
+                rows = []
+                for clip in blind(scored_clips(args.corpus, args.kind, args.split)):
+                    c = norm.normalize(clip.motion)
+                    shaped = with_posture(with_amplitude(c, c, example, reference, 0.25), c, example, reference)
+                    rows.append((clip.id, norm.denormalize(shaped)))
+                out[(style, draw, k)] = rows
+    return out
+
+
+def method_row(args: argparse.Namespace, fold_corpus: Path, draws: ExampleDraws, styles: list[str]) -> Transfers:
+    """``motionaug run`` of the method's shipped config per (draw, k): trained parts fit on the fold corpus (no
+    held-out style), examples given as files, content pool from the fold corpus's train split."""
+    shipped = load_run_config(REPO / "configs" / CONFIGS[args.kind].format(method=args.row))
+    originals = {c.id: c for c in Corpus(args.corpus, split="train")}
+    example_dir = args.work / "examples"
+    out: Transfers = {}
+    for draw in range(DRAWS):
+        for k in args.k:
+            style_specs = []
+            for style in styles:
+                spec = next(s for s in shipped.styles if s.name == style)
+                files = []
+                for i in examples_of(draws, style, draw, k):
+                    path = example_dir / f"{i}.npy"
+                    if not path.is_file():
+                        atomic_save_npy(path, originals[i].motion)
+                    files.append({"source": str(path), "description": spec.examples[0].description})
+                style_specs.append({**spec.model_dump(mode="json"), "examples": files})
+            data = json.loads(shipped.model_dump_json())
+            data["styles"] = style_specs
+            data["corpus"] |= {"path": str(fold_corpus), "split": args.split, "pool_split": "train"}
+            data["base_models"] |= {
+                "path": str(args.work / args.fold / f"{args.row}-trained"),
+                "corpus": str(fold_corpus),
+            }
+            data["output"] = str(args.work / args.fold / f"{args.row}-{args.split}-d{draw}-k{k}")
+            data["compute"] |= {"num_cpus": 2}
+            config = load_run_config(None, data=data)
+            check_held_out(config)
+            log(f"{args.row}: draw {draw}, k {k}")
+            execute_run(config)
+            for row in iter_shard_rows(config.output, columns=["source_id", "style", "motion", "n_frames", "n_feats"]):
+                out.setdefault((row["style"], draw, k), []).append((row["source_id"], row_motion(row)))
+    return out
+
+
+def run(args: argparse.Namespace) -> None:
+    fold = fold_of(args.kind, args.fold)
+    draws = read_draws(args.kind)
+    fold_corpus = args.work / args.fold / "corpus"
+    if not (fold_corpus / "all.txt").is_file():
+        write_without_styles(args.corpus, fold_corpus, list(fold.held_out))
+    torch.set_num_threads(args.threads)
+    start = time.perf_counter()
+    styles = list(fold.held_out)
+    if args.row == "content":
+        sources = blind(scored_clips(args.corpus, args.kind, args.split))
+        transfers = {
+            (s, d, k): [(c.id, c.motion) for c in sources] for s in styles for d in range(DRAWS) for k in args.k
+        }
+    elif args.row == "moments":
+        transfers = moment_row(args, fold_corpus, draws, styles)
+    else:
+        transfers = method_row(args, fold_corpus, draws, styles)
+    seconds = time.perf_counter() - start
+    result = score(args, transfers) | {
+        "commit": commit(),
+        "corpus": args.kind,
+        "fold": args.fold,
+        "row": args.row,
+        "split": args.split,
+        "k": args.k,
+        "seed": args.seed,
+        "seconds": round(seconds, 1),
+    }
+    path = RESULTS / f"{args.kind}-{args.fold}-{args.row}-{args.split}.json"
+    atomic_write_text(path, json.dumps(result, indent=None, separators=(",", ":")) + "\n")
+    log(f"wrote {path}")
+
+
+def score(args: argparse.Namespace, transfers: Transfers) -> dict[str, Any]:
+    """Per (style, draw, k): each judge's top-1 reading of every transfer, FMD against real held-out takes of the
+    style (judge-1 style features, matched counts), foot skating."""
+    judges = load_judges(args.work / "judges")
+    held = Corpus(args.corpus, split=args.split).by_style()
+    train = Corpus(args.corpus, split="train").by_style()
+    content_of = {c.id: c.content for c in Corpus(args.corpus, split=args.split)}
+    units = []
+    for (style, draw, k), outputs in sorted(transfers.items()):
+        motions = [m for _, m in outputs]
+        readings = {name: judges.predict(name, motions) for name in JUDGES}
+        _, real_feats = judges.predict("style", [c.motion for c in held[style]])
+        _, train_feats = judges.predict("style", [c.motion for c in train[style]])
+        fmd, n = matched_fmd(readings["style"][1], real_feats, args.seed)
+        floor, _ = matched_fmd(train_feats, real_feats, args.seed)
+        units.append(
+            {
+                "style": style,
+                "draw": draw,
+                "k": k,
+                "sources": [s for s, _ in outputs],
+                "truth_content": [content_of[s] for s, _ in outputs],
+                "read": {name: [judges.labels(name)[int(i)] for i in readings[name][0]] for name in JUDGES},
+                "fmd": fmd,
+                "fmd_floor": floor,
+                "fmd_n": n,
+                "skating": mean_foot_skating([features_to_joints(m) for m in motions], T2M, 20.0),
+                "real_skating": mean_foot_skating([features_to_joints(c.motion) for c in held[style]], T2M, 20.0),
+            }
+        )
+    return {"units": units}
+
+
+# ---- gather ----------------------------------------------------------------------------------------------------
+
+
+def summary(result: dict[str, Any], k: int) -> dict[str, float]:
+    """Means over the fold's styles and draws at ``k``: SRA per style judge, CRA per content judge, FMD / floor."""
+    units = [u for u in result["units"] if u["k"] == k]
+    out: dict[str, float] = {}
+    for judge in ("style", "style_clip"):
+        out[f"sra_{judge}"] = float(np.mean([np.mean([r == u["style"] for r in u["read"][judge]]) for u in units]))
+    for judge in ("content", "content_pose"):
+        out[f"cra_{judge}"] = float(
+            np.mean([np.mean([r == t for r, t in zip(u["read"][judge], u["truth_content"])]) for u in units])
+        )
+    out["fmd_ratio"] = float(np.mean([u["fmd"] / u["fmd_floor"] for u in units]))
+    out["skating_ratio"] = float(np.mean([u["skating"] / max(u["real_skating"], 1e-9) for u in units]))
+    per_style = defaultdict(list)
+    for u in units:
+        per_style[u["style"]].append(np.mean([r == u["style"] for r in u["read"]["style_clip"]]))
+    out["worst_style_sra_style_clip"] = float(min(np.mean(v) for v in per_style.values()))
+    return out
+
+
+def gather(args: argparse.Namespace) -> None:
+    print("| fold | row | k | SRA j1 | SRA j2 | CRA c1 | CRA c2 | worst style j2 | FMD / floor | skating / real | s |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for path in sorted(RESULTS.glob(f"{args.kind}-fold*-*-{args.split}.json")):
+        result = json.loads(path.read_text(encoding="utf-8"))
+        for k in result["k"]:
+            s = summary(result, k)
+            print(
+                f"| {result['fold']} | {result['row']} | {k} | {s['sra_style']:.1%} | {s['sra_style_clip']:.1%} "
+                f"| {s['cra_content']:.1%} | {s['cra_content_pose']:.1%} | {s['worst_style_sra_style_clip']:.1%} "
+                f"| {s['fmd_ratio']:.2f} | {s['skating_ratio']:.2f} | {result['seconds']:.0f} |"
+            )
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("command", choices=["setup", "run", "gather"])
+    parser.add_argument("--corpus", type=Path)
+    parser.add_argument("--kind", choices=sorted(LSO_FOLDS), default="bandai2")
+    parser.add_argument("--work", type=Path)
+    parser.add_argument("--fold", default="fold1")
+    parser.add_argument("--row", default="content")
+    parser.add_argument("--split", choices=["val", "test"], default="val")
+    parser.add_argument("--k", type=int, nargs="+", default=[1, 3])
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--judge-epochs", type=int, default=40)
+    args = parser.parse_args(argv)
+    {"setup": setup, "run": run, "gather": gather}[args.command](args)
+
+
+if __name__ == "__main__":
+    main()
