@@ -205,3 +205,11 @@ def test_clips_the_evaluators_trained_on_are_counted_and_held_out_figures_kept_a
     assert any("optimistic" in note for note in evaluation.notes)
     table = summary_table((tiny["run"] / "report.md").read_text())
     assert table["all"]["clips the evaluators trained on"] == str(len(train_rows))
+
+
+def test_a_run_whose_pool_is_its_scored_clips_is_marked_not_held_out(tiny) -> None:
+    """The tiny run sets no pool split, so its method learnt from the clips it is scored on; the report says so."""
+    evaluation = evaluate_run(tiny["run"], base_models=tiny["base"])
+    assert any("pool is the scored clips" in leak for leak in evaluation.leaks)
+    report = (tiny["run"] / "report.md").read_text(encoding="utf-8")
+    assert "**held out**: NOT HELD OUT: corpus.pool_split is unset" in report

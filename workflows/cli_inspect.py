@@ -90,4 +90,6 @@ def evaluate_command(
     console.print(table)
     for note in evaluation.notes:
         console.print(f"[yellow]not measured:[/yellow] {note}", highlight=False)
+    for leak in evaluation.leaks:
+        console.print(f"[red]not held out:[/red] {leak}", highlight=False)
     console.print(f"wrote {md}, {page} and {scores}")

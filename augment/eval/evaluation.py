@@ -27,6 +27,7 @@ from scipy.linalg import LinAlgWarning
 from motionaug.augment.corpus import Corpus
 from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.corpus.humanml3d import check_id
+from motionaug.augment.eval.protocol import held_out_leaks
 from motionaug.augment.io import atomic_path
 from motionaug.augment.metrics import (
     diversity,
@@ -52,6 +53,7 @@ from motionaug.augment.training.base_models import (
 from motionaug.augment.training.evaluators import EvaluatorsInfo, evaluators_folder, read_evaluators_info
 from motionaug.models.evaluators import ClassifierConfig, MotionClassifier
 from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.run_config import RunConfig
 from motionaug.schemas.shards import Manifest
 from motionaug.schemas.skeleton import T2M, Skeleton
 
@@ -158,6 +160,7 @@ class Evaluation:
     rows: int = 0
     rejects: int = 0
     notes: list[str] = field(default_factory=list)
+    leaks: list[str] = field(default_factory=list)  # why the figures are not held out (empty: they are)
 
 
 # ---- loading -------------------------------------------------------------------------------------
@@ -334,6 +337,14 @@ def _predictions(probs: np.ndarray, labels: list[str], targets: Sequence[str | N
 # ---- the evaluation ------------------------------------------------------------------------------
 
 
+def _held_out_leaks(config: dict) -> list[str]:
+    """How a scored clip of the run may have reached its method (``protocol.held_out_leaks``); empty: none."""
+    try:
+        return held_out_leaks(RunConfig.model_validate(config))
+    except (ValueError, MotionDataError) as err:
+        return [f"its pool could not be checked ({str(err).splitlines()[0]})"]
+
+
 def evaluate_run(
     run_dir: str | Path,
     reference: str | Path | None = None,
@@ -397,6 +408,7 @@ def evaluate_run(
         rows=manifest.rows,
         rejects=manifest.rejects,
         notes=notes,
+        leaks=_held_out_leaks(config),
     )
 
 

@@ -209,6 +209,7 @@ def _info_lines(evaluation: Evaluation) -> list[tuple[str, str]]:
         ("corpus", evaluation.corpus),
         ("FMD reference", evaluation.reference),
         ("base models", evaluation.base_models or "none (classifier metrics not measured)"),
+        ("held out", "NOT HELD OUT: " + "; ".join(evaluation.leaks) if evaluation.leaks else "yes"),
     ]
 
 
