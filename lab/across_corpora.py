@@ -5,7 +5,7 @@ Usage: python lab/across_corpora.py --synth-corpus SYNTH --synth-base SYNTH_BASE
        [--styles active,...] [--n-content 36] [--params JSON] [--transfer-params JSON] [--threads 1]
 
 ``SYNTH``/``SYNTH_BASE``: ``bench/bench_pretrain.py synthetic`` (the corpus and its base models); ``BANDAI2``/
-``BANDAI2_BASE``: the corpus and base models of ``bench/bench_bandai2.py``. Each base's evaluators are fit on its
+``BANDAI2_BASE``: the corpus and base models of ``lab/bandai2_quality.py``. Each base's evaluators are fit on its
 corpus's train split only.
 
 - ``bandai-to-synth``: each Bandai-2 style of ``configs/bandai2-onthefly.yaml`` learnt from that config's example (take

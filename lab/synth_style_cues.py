@@ -15,15 +15,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # lab reuses the quality benches' loaders
-
 
 from motionaug.augment.corpus import Corpus  # noqa: E402
 from motionaug.augment.eval.evaluation import classify, load_classifiers  # noqa: E402

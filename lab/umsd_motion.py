@@ -3,7 +3,7 @@
   python lab/umsd_motion.py --corpus SYNTH/corpus --work WORK --tag TAG --split val [--style depressed]
       [--by-content]
 
-Reads ``WORK/<tag>-<split>-outputs.npz`` written by bench_umsd_quality.py (no model runs) and renders each source
+Reads ``WORK/<tag>-<split>-outputs.npz`` written by umsd_quality.py (no model runs) and renders each source
 spec in the target style (the true transfer). Per style (and with ``--by-content`` per source content), means over
 clips of: the root height (metres); the pace, the root's mean ground speed (m/s, at the corpus's 20 fps); the
 roughness, the mean absolute second difference over frames of the
@@ -15,14 +15,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # lab reuses the quality benches' loaders
-from bench_umsd_quality import RIC, load_clips  # noqa: E402
+from umsd_quality import RIC, load_clips  # noqa: E402
 
 from motionaug.augment.motion.features import feature_slices  # noqa: E402
 from motionaug.augment.synth import restyled  # noqa: E402

@@ -14,14 +14,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sys
 import time
 from dataclasses import replace
 from pathlib import Path
 
 import torch
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # lab reuses the quality benches' loaders
 
 from motionaug.augment.corpus import Corpus
 from motionaug.augment.methods.umsd import UmsdTrainConfig, UmsdTrainer, prepare_data

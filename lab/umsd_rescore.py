@@ -4,12 +4,12 @@ posture, the spectral ceiling and smoothing.
   python lab/umsd_rescore.py --corpus CORPUS --base BASE --work WORK --tag TAG --split val
       --variant SLACK:FROM_HZ:SMOOTH[:POSTURE[:AMPLITUDE]] [--variant ...]
 
-Reads ``WORK/<tag>-<split>.json`` and ``-outputs.npz`` of a bench_umsd_quality.py run made without clean-up
+Reads ``WORK/<tag>-<split>.json`` and ``-outputs.npz`` of a umsd_quality.py run made without clean-up
 (``ceiling_slack``, ``smooth_frames`` 0, ``posture`` and ``amplitude`` network), applies to every output what
 ``UmsdStyleModel`` would with ``amplitude`` AMPLITUDE (``network`` or ``example``, default network),
 ``posture`` POSTURE (the same), ``ceiling_slack`` SLACK (0: none), ``ceiling_from_hz`` FROM_HZ and
 ``smooth_frames`` SMOOTH, in that order, restores the kept channels as sampled, and scores like
-bench_umsd_quality.py (same evaluators, same held-out clips). The examples' references are those the run's
+umsd_quality.py (same evaluators, same held-out clips). The examples' references are those the run's
 ``prepare`` picked (a run with style-contrast guidance, posture or amplitude: example). A variant ``0:0:0`` gives
 the run's own figures back. Prints one row per variant.
 """
@@ -26,9 +26,7 @@ from typing import Any
 
 import numpy as np
 import torch
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # lab reuses the quality benches' loaders
-from bench_umsd_quality import by_style, load_clips, score, splits  # noqa: E402
+from umsd_quality import by_style, load_clips, score, splits  # noqa: E402
 
 from motionaug.augment.corpus import MotionClip  # noqa: E402
 from motionaug.augment.methods.common import trajectory_channels  # noqa: E402
@@ -99,7 +97,7 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
     raw = np.load(args.work / f"{args.tag}-{args.split}-outputs.npz")
     sources = {k.split("/", 1)[1]: clips[k.split("/", 1)[1]] for k in raw.keys()}
     references = run["transfer"].get("references", {})
-    if args.repick:  # the run's pool was its held-out sources (bench_umsd_quality.transfer)
+    if args.repick:  # the run's pool was its held-out sources (umsd_quality.transfer)
         pool = {i: clip.motion for i, clip in sources.items()}
         references = {s: [nearest_root_motion(clips[e].motion, pool)[0]] for s, e in run["examples"].items()}
         print("references picked again:", {s: clips[r[0]].content for s, r in references.items()})

@@ -3,7 +3,7 @@
   python lab/umsd_shake.py --corpus SYNTH/corpus --work WORK --tag TAG --split val --style depressed
       [--clips 16] [--steps 1,10,50,100,200,400,700,999]
 
-Reads ``WORK/<tag>-<split>.json`` and ``-outputs.npz`` (bench_umsd_quality.py on the synthetic corpus). For the
+Reads ``WORK/<tag>-<split>.json`` and ``-outputs.npz`` (umsd_quality.py on the synthetic corpus). For the
 first ``--clips`` neutral clips of the split, the true transfer into ``--style`` (the source rendered in that
 style) is noised to each t of ``--steps`` and the tag's network predicts x0 once, conditioned on the source and the
 tag's style example. Prints the roughness (the mean absolute second difference over frames of the facing-frame
@@ -16,15 +16,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import torch
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # lab reuses the quality benches' loaders
-from bench_umsd_quality import load_clips, splits  # noqa: E402
 from umsd_motion import measures  # noqa: E402
+from umsd_quality import load_clips, splits  # noqa: E402
 
 from motionaug.augment.diffusion import NoiseSchedule, q_sample  # noqa: E402
 from motionaug.augment.methods.umsd import load_umsd  # noqa: E402

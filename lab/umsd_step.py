@@ -14,15 +14,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sys
 import time
 from pathlib import Path
 
 import torch
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # lab reuses the quality benches' loaders
-
-from bench_umsd_quality import PRESETS, load_clips, splits  # noqa: E402
+from umsd_quality import PRESETS, load_clips, splits  # noqa: E402
 
 from motionaug.augment.methods.umsd.training import UmsdTrainConfig, UmsdTrainer, prepare_data  # noqa: E402
 from motionaug.schemas.run_config import apply_overrides

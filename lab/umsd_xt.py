@@ -14,14 +14,11 @@ is the content, so the ankle shows whether a large movement (a kick) is taken fr
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
 import torch
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # lab reuses the quality benches' loaders
-from bench_umsd_quality import load_clips, splits  # noqa: E402
+from umsd_quality import load_clips, splits  # noqa: E402
 
 from motionaug.augment.diffusion import NoiseSchedule, q_sample  # noqa: E402
 from motionaug.augment.methods.umsd import load_umsd  # noqa: E402

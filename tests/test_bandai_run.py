@@ -2,7 +2,7 @@
 held-out `normal` takes stylized by ``motionaug run`` on a real local Ray, the outputs scored by those evaluators.
 
 Sizes are tiny (40 prior steps): this checks that the real-data path runs and keeps its held-out protocol, not the
-quality, which bench/bench_bandai2.py measures.
+quality, which lab/bandai2_quality.py measures.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Style-ERD transfer quality on held-out clips: CRA, SRA, FMD, foot skating, first-frames accuracy.
 
-Usage: python bench/bench_erd_quality.py --corpus CORPUS --evaluators BASE --work WORK [--split val|test]
+Usage: python lab/erd_quality.py --corpus CORPUS --evaluators BASE --work WORK [--split val|test]
        [--steps N] [--params JSON] [--neutral normal] [--tag NAME] [--threads 1]
 
 ``CORPUS``: a labelled corpus with split files (Bandai-2: ``motionaug corpus import-bvh ... --val-takes 3
@@ -12,7 +12,7 @@ evaluators were fit on its train split only (``motionaug pretrain --corpus CORPU
 2. Stylizes every ``--neutral`` clip of ``--split`` into every style the network learnt (neutral -> neutral too)
    with ``transfer``, the call the ``erd`` method plug-in makes, its content label given (the neutral branch's
    initial state by content).
-3. Scores with ``bench/bench_bandai2.py``'s functions: CRA / SRA with Wilson 95% intervals, FMD on the evaluators'
+3. Scores with ``lab/bandai2_quality.py``'s functions: CRA / SRA with Wilson 95% intervals, FMD on the evaluators'
    content features against the real ``--split`` clips of the style (both drawn to the same count) beside the
    real train-vs-held-out floor, foot skating against real clips.
 4. First frames: style and content accuracy of the first ``--first-frames`` frames of each output, with the

@@ -1,6 +1,6 @@
-"""UMSD quality on held-out Bandai-2 takes (or the synthetic corpus): train once, transfer, score like bench_bandai2.
+"""UMSD quality on held-out Bandai-2 takes (or the synthetic corpus): train once, transfer, score like bandai2_quality.
 
-Usage: python bench/bench_umsd_quality.py --corpus CORPUS --base BASE --work WORK [--split val|test]
+Usage: python lab/umsd_quality.py --corpus CORPUS --base BASE --work WORK [--split val|test]
        [--preset bandai] [--steps 2000] [--set key=value ...] [--hold-out STYLE] [--params JSON]
        [--neutral normal] [--example-content walk] [--threads 1] [--train-only]
 
@@ -19,7 +19,7 @@ with ``--hold-out`` styles excluded (the unseen-style run, paper sec. 4.4). The 
 ``UmsdMethod.prepare`` from one example clip of the train split (the first take of ``--example-content`` in that
 style, as in configs/bandai2-onthefly.yaml), then ``transfer`` of every neutral clip of ``--split`` (``--params``:
 JSON merged into the method params, e.g. DDIM steps, ``keep``, ``transfer_noise_step``, ``window``).
-(c) Scores with bench_bandai2's code: CRA / SRA (top-1 of the content / style evaluator against the source's
+(c) Scores with bandai2_quality's code: CRA / SRA (top-1 of the content / style evaluator against the source's
 content / the target style, Wilson 95% intervals), FMD of content-evaluator features against the real ``--split``
 clips of the style drawn to the same count (beside the real train-vs-held-out floor), foot skating; on synthetic
 clips also each output's mean pose against its source rendered in every style (``posture_nearest``: whose render
@@ -182,7 +182,7 @@ def score(
     train_by_style: dict[str, list[MotionClip]],
     sources: dict[str, MotionClip],
 ) -> dict[str, Any]:
-    """bench_bandai2.score's figures, on in-memory outputs."""
+    """bandai2_quality.score's figures, on in-memory outputs."""
     judges = load_classifiers(args.base)
     rows: dict[str, Any] = {}
     truths: dict[str, dict[str, np.ndarray]] = {}  # source id -> style -> mean pose of its true render

@@ -1,6 +1,6 @@
 """The on-the-fly paper's Bandai-2 protocol (sec. 4.2, Table 2) on held-out takes, scored per style.
 
-Usage: python bench/bench_bandai2.py --corpus BANDAI2 --base BASE --work WORK [--split test|val]
+Usage: python lab/bandai2_quality.py --corpus BANDAI2 --base BASE --work WORK [--split test|val]
        [--method onthefly|stats] [--params JSON] [--examples 1] [--set key=value ...] [--guidance 1.5,2]
        [--foot-lock] [--prior-base BASE_WITHOUT_STYLE]
 
