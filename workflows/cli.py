@@ -22,7 +22,7 @@ from rich.progress import (
 from rich.table import Table
 
 from motionaug.schemas.errors import MotionDataError
-from motionaug.workflows import cli_inspect, cli_stream  # noqa: F401  (register their commands on the app)
+from motionaug.workflows import cli_inspect, cli_stream, cli_view  # noqa: F401  (register their commands on the app)
 from motionaug.workflows.cli_app import (
     app,
     console,

@@ -14,6 +14,7 @@ from rich.table import Table
 
 from motionaug.schemas.errors import MotionDataError
 from motionaug.workflows.cli_app import app, console, note_output, run_safely, usage_errors
+from motionaug.workflows.cli_view import IdsOption, print_viewer, split_ids
 
 
 @app.command("preview")
@@ -24,13 +25,27 @@ def preview_command(
     out: Annotated[Path | None, typer.Option(help="Output file: .gif, .mp4 (or .png with --grid).")] = None,
     grid: Annotated[int | None, typer.Option(min=1, help="Contact sheet of N random transfers across styles.")] = None,
     seed: Annotated[int, typer.Option(help="Seed for --grid's choice of clips.")] = 0,
+    html: Annotated[
+        bool, typer.Option("--html", help="The 3D viewer (a folder: viewer.html + viewer/) of --ids, --worst or all.")
+    ] = False,
+    ids: IdsOption = None,
+    worst: Annotated[
+        int | None, typer.Option(min=1, help="With --html: the N clips with the lowest limb agreement (a run).")
+    ] = None,
 ) -> None:
-    """Animate a clip beside its stylized version (a run), or one clip of a corpus; --grid: a PNG contact sheet."""
+    """Animate a clip beside its stylized version (a run), or one clip of a corpus; --grid: a PNG contact sheet;
+    --html: the 3D viewer of a chosen subset (default folder: previews/viewer in the run, ./previews/viewer-NAME)."""
     from motionaug.augment.eval.evaluation import preview_corpus, preview_grid, preview_transfer
     from motionaug.augment.outputs.run_dir import RunDir
 
+    is_run = RunDir(path).is_run()
+    if html:
+        with usage_errors():
+            _check_html_args(path, grid, worst, is_run)
+        _preview_html(path, out, split_ids(ids) or ([clip] if clip else None), worst, is_run)
+        return
     with usage_errors():
-        _check_preview_args(path, clip, style, grid, RunDir(path).is_run())
+        _check_preview_args(path, clip, style, grid, is_run)
     note_output(out or path)
     with console.status("rendering preview"):
         if grid is not None:
@@ -40,6 +55,28 @@ def preview_command(
         else:
             written = run_safely(lambda: preview_corpus(path, clip, out))
     console.print(f"wrote {written}")
+
+
+def _preview_html(path: Path, out: Path | None, ids: list[str] | None, worst: int | None, is_run: bool) -> None:
+    from motionaug.augment.render.viewer import write_corpus_viewer, write_run_viewer
+
+    target = out or (path / "previews" / "viewer" if is_run else Path("previews") / f"viewer-{path.name}")
+    note_output(target)
+    with console.status("writing the viewer"):
+        if is_run:
+            summary = run_safely(lambda: write_run_viewer(path, target, ids, worst))
+        else:
+            summary = run_safely(lambda: write_corpus_viewer(path, target, ids))
+    print_viewer(summary)
+
+
+def _check_html_args(path: Path, grid: int | None, worst: int | None, is_run: bool) -> None:
+    if not path.exists():
+        raise MotionDataError(str(path), "not found")
+    if grid is not None:
+        raise MotionDataError("--html/--grid", "give one: --html writes the 3D viewer, --grid a PNG sheet")
+    if worst is not None and not is_run:
+        raise MotionDataError("--worst", f"{path} is a corpus, not a run: it has no content scores")
 
 
 def _check_preview_args(path: Path, clip: str | None, style: str | None, grid: int | None, is_run: bool) -> None:
@@ -71,12 +108,15 @@ def evaluate_command(
     """Score every stylized clip; write report.md, report.html and scores.parquet into the run folder."""
     from motionaug.augment.eval.evaluation import evaluate_run, write_scores
     from motionaug.augment.eval.report import SUMMARY_COLUMNS, format_value, write_report
+    from motionaug.augment.render.viewer import write_run_viewer
 
     note_output(run)
     with console.status(f"evaluating {run}"):
         evaluation = run_safely(lambda: evaluate_run(run, reference, base_models))
         scores = run_safely(lambda: write_scores(evaluation))
-        md, page = run_safely(lambda: write_report(evaluation))
+    with console.status(f"writing the 3D viewer of {run}"):
+        viewer = run_safely(lambda: write_run_viewer(run))
+    md, page = run_safely(lambda: write_report(evaluation))
     shown = [
         c
         for c in SUMMARY_COLUMNS
@@ -91,3 +131,4 @@ def evaluate_command(
     for note in evaluation.notes:
         console.print(f"[yellow]not measured:[/yellow] {note}", highlight=False)
     console.print(f"wrote {md}, {page} and {scores}")
+    print_viewer(viewer)
