@@ -29,6 +29,7 @@ from motionaug.workflows.cli_app import (
     corpus_app,
     err_console,
     note_output,
+    off_terminal,
     run_safely,
     usage_errors,
 )
@@ -117,6 +118,9 @@ def corpus_import_bvh(
         bool, typer.Option("--append", help="Add to the corpus in --out; clips it already holds are skipped.")
     ] = False,
     force: Annotated[bool, typer.Option("--force", help="Replace the corpus in --out.")] = False,
+    log_every: Annotated[
+        float, typer.Option(min=1, help="Off a terminal (a job's log): seconds between progress lines.")
+    ] = 10.0,
 ) -> None:
     """Retarget BVH files to the t2m skeleton at 20 fps, caption them from their labels and write a corpus
     (docs/bandai.md: the Bandai-2 protocol is --max-frames 196 --val-takes 3 --test-takes 3 --mean-std)."""
@@ -126,7 +130,7 @@ def corpus_import_bvh(
         if append and force:
             raise MotionDataError("--append/--force", "give one: --append adds to the corpus, --force replaces it")
     note_output(out)
-    with console.status(f"importing BVH from {src}"):
+    with console.status(f"importing BVH from {src}"), off_terminal("import-bvh", log_every, "files") as beat:
         summary = run_safely(
             lambda: import_bvh(
                 src,
@@ -142,6 +146,7 @@ def corpus_import_bvh(
                 licence=licence,
                 captions=captions,
                 mode="append" if append else "force" if force else "new",
+                progress=beat.update if beat else None,
             )
         )
     for reject in summary.rejects:
@@ -236,6 +241,9 @@ def pretrain(
     address: Annotated[
         str | None, typer.Option(help="Ray cluster address for --workers (default: RAY_ADDRESS or an embedded Ray).")
     ] = None,
+    log_every: Annotated[
+        float, typer.Option(min=1, help="Off a terminal (a job's log): seconds between progress lines.")
+    ] = 10.0,
 ) -> None:
     """Train the base models: the T2M diffusion prior and the motion encoder, and the evaluators (OUT/evaluators)."""
     from motionaug.augment.training.pretrain import PretrainConfig, ensure_base_models, fit_evaluators
@@ -247,13 +255,26 @@ def pretrain(
     options |= {name: str(path.resolve()) for name, path in mdm.items() if path is not None}
     config = run_safely(lambda: PretrainConfig.for_size(size, seed=seed, **options))
     if evaluators_only:
-        metrics = run_safely(lambda: fit_evaluators(corpus, out, config))
+        with off_terminal("pretrain evaluators", log_every):
+            metrics = run_safely(lambda: fit_evaluators(corpus, out, config))
         console.print(_facts(f"evaluators in {out}", [(k, f"{v:.4f}") for k, v in sorted(metrics.items())]))
         return
     if workers > 1 or gpus_per_worker > 0:
         from motionaug.workflows.pretrain_cluster import pretrain_on_ray
 
-        folder = run_safely(lambda: pretrain_on_ray(corpus, out, config, workers, gpus_per_worker, address))
+        with off_terminal("pretrain (driver)", log_every):
+            folder = run_safely(
+                lambda: pretrain_on_ray(corpus, out, config, workers, gpus_per_worker, address, log_every)
+            )
+        _print_base_models(folder)
+        return
+    if not console.is_terminal:  # a job log, nohup, CI: lines at a fixed interval instead of bars
+        with off_terminal("pretrain", log_every) as beat:
+            folder = run_safely(
+                lambda: ensure_base_models(
+                    corpus, out, size, seed, progress=beat.update if beat else None, config=config
+                )
+            )
         _print_base_models(folder)
         return
     columns = (
@@ -517,13 +538,14 @@ def export_command(
     if fmt == "bvh":
         from motionaug.augment.motion.bvh_export import export_bvh
 
-        b = run_safely(lambda: export_bvh(run, out, style))
+        with off_terminal("export bvh", unit="files"):
+            b = run_safely(lambda: export_bvh(run, out, style))
         console.print(
             f"wrote {b.files} BVH files to {b.out} ({b.with_positions} non-rigid, with position channels); "
             f"largest joint error {b.max_error_m * 1000:.3f} mm"
         )
         return
-    with console.status(f"exporting {run} to {out}"):
+    with console.status(f"exporting {run} to {out}"), off_terminal("export", unit="clips"):
         s = run_safely(lambda: export_run(run, out, fmt, min_content_score, keep_mean_std))
     console.print(
         f"wrote {s.originals} original + {s.stylized} stylized clips to {s.out} ({s.format}); "

@@ -27,6 +27,7 @@ from rich.console import Console
 from rich.markup import escape
 
 from motionaug.schemas.errors import MotionDataError, first_error
+from motionaug.workflows.progress_log import Heartbeat
 
 EXIT_FAILURE = 1
 EXIT_USAGE = 2
@@ -175,6 +176,20 @@ def usage_errors() -> Iterator[None]:
     """Like ``user_errors`` for a bad config or argument: one line, exit code 2."""
     with _errors_exit(EXIT_USAGE):
         yield
+
+
+LOG_EVERY = 10.0  # seconds between progress lines off a terminal
+
+
+@contextmanager
+def off_terminal(command: str, every: float = LOG_EVERY, unit: str = "steps") -> Iterator[Heartbeat | None]:
+    """Progress lines every ``every`` seconds when stdout is not a terminal (a job log, ``nohup``, CI), where rich
+    spinners and bars show nothing until the end; None on a terminal."""
+    if console.is_terminal:
+        yield None
+        return
+    with Heartbeat(command, every, unit) as beat:
+        yield beat
 
 
 def run_safely(fn: Callable[[], T]) -> T:

@@ -13,7 +13,7 @@ import typer
 from rich.table import Table
 
 from motionaug.schemas.errors import MotionDataError
-from motionaug.workflows.cli_app import app, console, note_output, run_safely, usage_errors
+from motionaug.workflows.cli_app import app, console, note_output, off_terminal, run_safely, usage_errors
 from motionaug.workflows.cli_view import IdsOption, print_viewer, split_ids
 
 
@@ -111,10 +111,12 @@ def evaluate_command(
     from motionaug.augment.render.viewer import write_run_viewer
 
     note_output(run)
-    with console.status(f"evaluating {run}"):
-        evaluation = run_safely(lambda: evaluate_run(run, reference, base_models))
+    with console.status(f"evaluating {run}"), off_terminal("evaluate", unit="clips") as beat:
+        evaluation = run_safely(
+            lambda: evaluate_run(run, reference, base_models, progress=beat.update if beat else None)
+        )
         scores = run_safely(lambda: write_scores(evaluation))
-    with console.status(f"writing the 3D viewer of {run}"):
+    with console.status(f"writing the 3D viewer of {run}"), off_terminal("evaluate viewer"):
         viewer = run_safely(lambda: write_run_viewer(run))
     md, page = run_safely(lambda: write_report(evaluation))
     shown = [

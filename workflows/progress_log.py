@@ -8,6 +8,7 @@ one line at most every ``every`` seconds (and when it completes), with counts, r
 from __future__ import annotations
 
 import sys
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -75,3 +76,80 @@ class LineProgress:
 
 def _print(line: str) -> None:
     print(line, file=sys.stdout, flush=True)
+
+
+class Heartbeat:
+    """A command's progress off a terminal: one line every ``every`` seconds from a background thread, whether or
+    not the work reported since, so a job log never goes quiet; a line too when a stage starts and when it ends.
+
+    The work calls ``update(stage, done, total, metrics)`` (``augment.training.pretrain``'s progress hook has this
+    signature): ``pretrain prior 120/4000 steps (3%), loss 0.1234, 2.31 steps/s, ETA 28m00s``.
+    """
+
+    def __init__(
+        self,
+        command: str,
+        every: float = 10.0,
+        unit: str = "steps",
+        write: Callable[[str], None] | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.command = command
+        self.every = every
+        self.unit = unit
+        self.write = write or _print
+        self.clock = clock
+        self.started = clock()
+        self.stage: str | None = None
+        self.stage_started = self.started
+        self.done = self.first = self.total = 0
+        self.metrics: dict[str, float] = {}
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def update(self, stage: str, done: int, total: int, metrics: dict[str, float] | None = None) -> None:
+        with self._lock:
+            if stage != self.stage:
+                if self.stage is not None and self.done < self.total:
+                    self.write(self.line())  # the last state of a stage left early
+                self.stage, self.stage_started, self.first = stage, self.clock(), done
+                self.write(f"{self.command} {stage} {done}/{total} {self.unit}: started")
+            self.done, self.total, self.metrics = done, total, dict(metrics or {})
+            if total and done >= total:
+                self.write(self.line())
+
+    def line(self) -> str:
+        """The current state: stage, counts, the latest loss, rate and time left at that rate."""
+        now = self.clock()
+        if self.stage is None:
+            return f"{self.command}: working, {format_seconds(now - self.started)} elapsed"
+        elapsed = max(now - self.stage_started, 1e-9)
+        head = f"{self.command} {self.stage} {self.done}/{self.total} {self.unit}"
+        if self.total:
+            head += f" ({100 * self.done // self.total}%)"
+        loss = next((f", {k} {v:.4f}" for k, v in self.metrics.items() if "loss" in k), "")
+        if self.total and self.done >= self.total:
+            return f"{head}{loss}: done in {format_seconds(elapsed)}"
+        rate = (self.done - self.first) / elapsed
+        eta = f"ETA {format_seconds((self.total - self.done) / rate)}" if rate > 0 and self.total else "ETA -"
+        return f"{head}{loss}, {rate:.2f} {self.unit}/s, {eta}, {format_seconds(now - self.started)} elapsed"
+
+    def _beat(self) -> None:
+        while not self._stop.wait(self.every):
+            with self._lock:
+                self.write(self.line())
+
+    def __enter__(self) -> Heartbeat:
+        self.write(f"{self.command}: started")
+        self._thread = threading.Thread(target=self._beat, name=f"{self.command}-progress", daemon=True)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        self.write(
+            f"{self.command}: {'failed' if exc[0] else 'finished'} after {format_seconds(self.clock() - self.started)}"
+        )

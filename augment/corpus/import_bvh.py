@@ -25,7 +25,7 @@ import re
 import shutil
 import time
 from collections import defaultdict
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -388,6 +388,7 @@ def import_bvh(
     licence: str | None = None,
     captions: int = 3,
     mode: ImportMode = "new",
+    progress: Callable[[str, int, int, dict[str, float]], None] | None = None,
 ) -> ImportSummary:
     """Write every usable BVH under ``src`` to ``out``; rejects go to ``out/rejects.jsonl``.
 
@@ -398,6 +399,7 @@ def import_bvh(
     style) pair (``split_takes``) into ``train.txt``/``val.txt``/``test.txt``/``train_val.txt`` beside ``all.txt``
     (HumanML3D) or the ``split`` column (Parquet); ``mean_std`` writes ``Mean.npy``/``Std.npy`` from the train
     split (every clip without splits). ``licence`` names the data's licence; Bandai file names imply theirs.
+    ``progress(stage, files done, files, {})`` hears of each file read.
     """
     started = time.perf_counter()
     src, out = Path(src), Path(out)
@@ -414,7 +416,7 @@ def import_bvh(
         options = ImportOptions(
             fmt, content, style, the_map, max_frames, val_takes, test_takes, mean_std, licence, captions
         )
-        summary = _import_into(target, src, files, options)
+        summary = _import_into(target, src, files, options, progress)
         if summary.clips == 0:
             first = f"; first: {summary.rejects[0]}" if summary.rejects else ""
             reason = (
@@ -444,7 +446,13 @@ class ImportOptions:
     captions: int
 
 
-def _import_into(target: ImportTarget, src: Path, files: list[Path], o: ImportOptions) -> ImportSummary:
+def _import_into(
+    target: ImportTarget,
+    src: Path,
+    files: list[Path],
+    o: ImportOptions,
+    progress: Callable[[str, int, int, dict[str, float]], None] | None = None,
+) -> ImportSummary:
     """The import proper, into ``target.stage``; files the import rewrites are merged with the target's."""
     stage = target.stage
     splitting = o.val_takes > 0 or o.test_takes > 0
@@ -457,8 +465,14 @@ def _import_into(target: ImportTarget, src: Path, files: list[Path], o: ImportOp
     split_ids: dict[str, list[str]] = {name: [] for name in SPLITS}
     pairs: dict[str, set[str]] = {name: set() for name in (*SPLITS, "all")}
 
+    read = 0
+
     def counted() -> Iterator[MotionClip]:
+        nonlocal read
         for take in iter_bvh_clips(src, rejects, o.content, o.style, o.joint_map, captions=o.captions):
+            read += 1
+            if progress is not None:
+                progress("read", min(read + len(rejects), len(files)), len(files), {})
             split = split_of.get(take.id)
             if split:
                 take.meta["split"] = split
