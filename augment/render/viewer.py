@@ -138,7 +138,7 @@ def limb_agreement(content: np.ndarray, stylized: np.ndarray) -> float | None:
 # ---- writing the page and its chunks ------------------------------------------------------------------
 
 
-class _ChunkWriter:
+class ChunkWriter:
     """Motion records into ``viewer/chunks/cNNNNN.js``, ``per_chunk`` at a time; returns each record's chunk."""
 
     def __init__(self, folder: Path, per_chunk: int) -> None:
@@ -181,7 +181,7 @@ class ViewerEntry:
     chunk: int = -1
 
 
-def _start_folder(out_dir: Path) -> Path:
+def start_folder(out_dir: Path) -> Path:
     data = out_dir / DATA_DIR
     if data.exists():
         shutil.rmtree(data)  # a rebuilt viewer never mixes chunks of two builds
@@ -192,7 +192,7 @@ def _start_folder(out_dir: Path) -> Path:
     return data
 
 
-def _write_index(out_dir: Path, index: dict, title: str, chunks: _ChunkWriter) -> ViewerSummary:
+def write_index(out_dir: Path, index: dict, title: str, chunks: ChunkWriter) -> ViewerSummary:
     data = out_dir / DATA_DIR
     text = f"motionaugIndex({json.dumps(index, separators=(',', ':'))});\n"
     atomic_write_text(data / "index.js", text)
@@ -209,7 +209,7 @@ def _html_escape(text: str) -> str:
     return html.escape(text)
 
 
-def _index(
+def make_index(
     kind: str, title: str, entries: Sequence[ViewerEntry], score_names: dict, default_sort: str, skeleton
 ) -> dict:
     return {
@@ -331,7 +331,7 @@ def write_run_viewer(
     entries = choose(run_entries(run_dir, skeleton), ids, worst)
     if not entries:
         raise MotionDataError(str(run_dir), "no stylized clip to show")
-    chunks = _ChunkWriter(_start_folder(out_dir) / "chunks", per_chunk)
+    chunks = ChunkWriter(start_folder(out_dir) / "chunks", per_chunk)
     corpus = Corpus(Path(RunDir(run_dir).config()["corpus"]["path"]), feature_dim=skeleton.feature_dim)
     source_chunk: dict[str, int] = {}
     for clip in _clips_of(corpus, {e.source for e in entries}):
@@ -355,9 +355,9 @@ def write_run_viewer(
     }
     shown = [e for e in entries if e.chunk >= 0]
     title = f"run {RunDir(run_dir).recorded_run_id()}"
-    index = _index("run", title, shown, names, LIMB_AGREEMENT, skeleton)
+    index = make_index("run", title, shown, names, LIMB_AGREEMENT, skeleton)
     index["source_chunks"] = {s: c for s, c in source_chunk.items()}
-    return _write_index(out_dir, index, title, chunks)
+    return write_index(out_dir, index, title, chunks)
 
 
 # ---- a corpus --------------------------------------------------------------------------------------
@@ -373,7 +373,7 @@ def write_corpus_viewer(
     """``viewer.html`` + ``viewer/`` of a corpus's clips (all, or ``ids``) into ``out_dir``."""
     corpus = Corpus(Path(corpus_path), feature_dim=skeleton.feature_dim)
     wanted = set(ids) if ids is not None else None
-    chunks = _ChunkWriter(_start_folder(Path(out_dir)) / "chunks", per_chunk)
+    chunks = ChunkWriter(start_folder(Path(out_dir)) / "chunks", per_chunk)
     entries: list[ViewerEntry] = []
     seen: set[str] = set()
     for clip in corpus:
@@ -394,8 +394,8 @@ def write_corpus_viewer(
     if not entries:
         raise MotionDataError(str(corpus_path), "corpus has no clips")
     title = f"corpus {Path(corpus_path).name}"
-    index = _index("corpus", title, entries, {"seconds": ("seconds", True)}, "", skeleton)
-    return _write_index(Path(out_dir), index, title, chunks)
+    index = make_index("corpus", title, entries, {"seconds": ("seconds", True)}, "", skeleton)
+    return write_index(Path(out_dir), index, title, chunks)
 
 
 def _first_text_of(captions: Sequence[str]) -> str:
