@@ -107,11 +107,21 @@ def corpus_import_bvh(
         Path | None, typer.Option(help="Joint map JSON/YAML for a rig other than Bandai's (docs/joint-map.md).")
     ] = None,
     max_frames: Annotated[
-        int | None, typer.Option(min=10, help="Cut longer takes into equal pieces of at most this many frames (196).")
+        int, typer.Option(min=0, help="Cut longer takes into equal pieces of at most this many frames (0: no cut).")
+    ] = 196,
+    val_takes: Annotated[
+        int | None,
+        typer.Option(min=0, help="Takes per (content, style) pair for val.txt (default: 15% of its takes, 0: none)."),
     ] = None,
-    val_takes: Annotated[int, typer.Option(min=0, help="Takes per (content, style) pair for val.txt.")] = 0,
-    test_takes: Annotated[int, typer.Option(min=0, help="Takes per (content, style) pair for test.txt.")] = 0,
-    mean_std: Annotated[bool, typer.Option(help="Write Mean.npy/Std.npy from the train split.")] = False,
+    test_takes: Annotated[
+        int | None,
+        typer.Option(min=0, help="Takes per (content, style) pair for test.txt (default: 15% of its takes, 0: none)."),
+    ] = None,
+    mean_std: Annotated[bool, typer.Option(help="Write Mean.npy/Std.npy from the train split.")] = True,
+    labels_from: Annotated[
+        str | None,
+        typer.Option(help="Labels from file names, e.g. '{style}_{take}_{part}.bvh' (fields style, content, take)."),
+    ] = None,
     licence: Annotated[str | None, typer.Option(help="The data's licence (Bandai file names imply theirs).")] = None,
     captions: Annotated[int, typer.Option(min=1, help="Captions per clip.")] = 3,
     append: Annotated[
@@ -122,8 +132,9 @@ def corpus_import_bvh(
         float, typer.Option(min=1, help="Off a terminal (a job's log): seconds between progress lines.")
     ] = 10.0,
 ) -> None:
-    """Retarget BVH files to the t2m skeleton at 20 fps, caption them from their labels and write a corpus
-    (docs/bandai.md: the Bandai-2 protocol is --max-frames 196 --val-takes 3 --test-takes 3 --mean-std)."""
+    """Retarget BVH files to the t2m skeleton at 20 fps, caption them from their labels and write a training-ready
+    corpus: takes cut at 196 frames, take-level train/val/test splits when the files carry take ids, Mean/Std of the
+    train split (docs/bandai.md)."""
     from motionaug.augment.corpus.import_bvh import import_bvh
 
     with usage_errors():
@@ -139,7 +150,7 @@ def corpus_import_bvh(
                 content,
                 style,
                 joint_map,
-                max_frames=max_frames,
+                max_frames=max_frames or None,
                 val_takes=val_takes,
                 test_takes=test_takes,
                 mean_std=mean_std,
@@ -147,6 +158,7 @@ def corpus_import_bvh(
                 captions=captions,
                 mode="append" if append else "force" if force else "new",
                 progress=beat.update if beat else None,
+                labels_from=labels_from,
             )
         )
     for reject in summary.rejects:
