@@ -28,6 +28,7 @@ from motionaug.workflows.cli_app import (
     console,
     corpus_app,
     err_console,
+    log_interval,
     note_output,
     off_terminal,
     run_safely,
@@ -117,7 +118,10 @@ def corpus_import_bvh(
         int | None,
         typer.Option(min=0, help="Takes per (content, style) pair for test.txt (default: 15% of its takes, 0: none)."),
     ] = None,
-    mean_std: Annotated[bool, typer.Option(help="Write Mean.npy/Std.npy from the train split.")] = True,
+    mean_std: Annotated[
+        bool | None,
+        typer.Option(help="Mean.npy/Std.npy from the train split (default: when the clips allow; else a warning)."),
+    ] = None,
     labels_from: Annotated[
         str | None,
         typer.Option(help="Labels from file names, e.g. '{style}_{take}_{part}.bvh' (fields style, content, take)."),
@@ -129,8 +133,9 @@ def corpus_import_bvh(
     ] = False,
     force: Annotated[bool, typer.Option("--force", help="Replace the corpus in --out.")] = False,
     log_every: Annotated[
-        float, typer.Option(min=1, help="Off a terminal (a job's log): seconds between progress lines.")
-    ] = 10.0,
+        float | None,
+        typer.Option(min=0.01, help="Off a terminal (a job's log): seconds between progress lines (default 10)."),
+    ] = None,
 ) -> None:
     """Retarget BVH files to the t2m skeleton at 20 fps, caption them from their labels and write a training-ready
     corpus: takes cut at 196 frames, take-level train/val/test splits when the files carry take ids, Mean/Std of the
@@ -163,6 +168,8 @@ def corpus_import_bvh(
         )
     for reject in summary.rejects:
         err_console.print(f"[yellow]skipped[/yellow] {reject}", highlight=False)
+    for note in summary.notes:
+        err_console.print(f"[yellow]warning[/yellow] {note}", highlight=False)
     for split, pairs in summary.missing_pairs.items():
         err_console.print(f"[yellow]warning[/yellow] {split} has no clip of {', '.join(pairs)}", highlight=False)
     console.print(
@@ -254,8 +261,9 @@ def pretrain(
         str | None, typer.Option(help="Ray cluster address for --workers (default: RAY_ADDRESS or an embedded Ray).")
     ] = None,
     log_every: Annotated[
-        float, typer.Option(min=1, help="Off a terminal (a job's log): seconds between progress lines.")
-    ] = 10.0,
+        float | None,
+        typer.Option(min=0.01, help="Off a terminal (a job's log): seconds between progress lines (default 10)."),
+    ] = None,
 ) -> None:
     """Train the base models: the T2M diffusion prior and the motion encoder, and the evaluators (OUT/evaluators)."""
     from motionaug.augment.training.pretrain import PretrainConfig, ensure_base_models, fit_evaluators
@@ -276,7 +284,7 @@ def pretrain(
 
         with off_terminal("pretrain (driver)", log_every):
             folder = run_safely(
-                lambda: pretrain_on_ray(corpus, out, config, workers, gpus_per_worker, address, log_every)
+                lambda: pretrain_on_ray(corpus, out, config, workers, gpus_per_worker, address, log_interval(log_every))
             )
         _print_base_models(folder)
         return

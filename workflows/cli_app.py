@@ -178,17 +178,22 @@ def usage_errors() -> Iterator[None]:
         yield
 
 
-LOG_EVERY = 10.0  # seconds between progress lines off a terminal
+LOG_EVERY_ENV = "MOTIONAUG_LOG_EVERY"  # seconds between progress lines off a terminal (default 10)
+
+
+def log_interval(given: float | None = None) -> float:
+    """Seconds between progress lines: ``given``, else MOTIONAUG_LOG_EVERY, else 10."""
+    return given or float(os.environ.get(LOG_EVERY_ENV) or 10.0)
 
 
 @contextmanager
-def off_terminal(command: str, every: float = LOG_EVERY, unit: str = "steps") -> Iterator[Heartbeat | None]:
-    """Progress lines every ``every`` seconds when stdout is not a terminal (a job log, ``nohup``, CI), where rich
-    spinners and bars show nothing until the end; None on a terminal."""
+def off_terminal(command: str, every: float | None = None, unit: str = "steps") -> Iterator[Heartbeat | None]:
+    """Progress lines every ``every`` seconds (default: MOTIONAUG_LOG_EVERY, else 10) when stdout is not a terminal
+    (a job log, ``nohup``, CI), where rich spinners and bars show nothing until the end; None on a terminal."""
     if console.is_terminal:
         yield None
         return
-    with Heartbeat(command, every, unit) as beat:
+    with Heartbeat(command, log_interval(every), unit) as beat:
         yield beat
 
 

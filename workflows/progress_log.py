@@ -81,6 +81,7 @@ def _print(line: str) -> None:
 class Heartbeat:
     """A command's progress off a terminal: one line every ``every`` seconds from a background thread, whether or
     not the work reported since, so a job log never goes quiet; a line too when a stage starts and when it ends.
+    A command that ends within its first ``every`` seconds prints nothing (a quick error stays one line).
 
     The work calls ``update(stage, done, total, metrics)`` (``augment.training.pretrain``'s progress hook has this
     signature): ``pretrain prior 120/4000 steps (3%), loss 0.1234, 2.31 steps/s, ETA 28m00s``.
@@ -107,17 +108,25 @@ class Heartbeat:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._spoke = False
+
+    def _say(self, line: str) -> None:
+        """Write ``line`` once the command has run ``every`` seconds; before that, stay quiet."""
+        if not self._spoke and self.clock() - self.started < self.every:
+            return
+        self._spoke = True
+        self.write(line)
 
     def update(self, stage: str, done: int, total: int, metrics: dict[str, float] | None = None) -> None:
         with self._lock:
             if stage != self.stage:
                 if self.stage is not None and self.done < self.total:
-                    self.write(self.line())  # the last state of a stage left early
+                    self._say(self.line())  # the last state of a stage left early
                 self.stage, self.stage_started, self.first = stage, self.clock(), done
-                self.write(f"{self.command} {stage} {done}/{total} {self.unit}: started")
+                self._say(f"{self.command} {stage} {done}/{total} {self.unit}: started")
             self.done, self.total, self.metrics = done, total, dict(metrics or {})
             if total and done >= total:
-                self.write(self.line())
+                self._say(self.line())
 
     def line(self) -> str:
         """The current state: stage, counts, the latest loss, rate and time left at that rate."""
@@ -138,10 +147,9 @@ class Heartbeat:
     def _beat(self) -> None:
         while not self._stop.wait(self.every):
             with self._lock:
-                self.write(self.line())
+                self._say(self.line())
 
     def __enter__(self) -> Heartbeat:
-        self.write(f"{self.command}: started")
         self._thread = threading.Thread(target=self._beat, name=f"{self.command}-progress", daemon=True)
         self._thread.start()
         return self
@@ -150,6 +158,6 @@ class Heartbeat:
         self._stop.set()
         if self._thread is not None:
             self._thread.join()
-        self.write(
-            f"{self.command}: {'failed' if exc[0] else 'finished'} after {format_seconds(self.clock() - self.started)}"
-        )
+        if self._spoke:
+            outcome = "failed" if exc[0] else "finished"
+            self.write(f"{self.command}: {outcome} after {format_seconds(self.clock() - self.started)}")

@@ -110,6 +110,7 @@ class ImportSummary(BaseModel):
     missing_pairs: dict[str, list[str]] = Field(default_factory=dict, description="'content/style' absent per split.")
     licence: str | None = None
     seconds: float = 0.0
+    notes: list[str] = Field(default_factory=list, description="What a default could not do, and why.")
 
 
 class CorpusMeta(BaseModel):
@@ -458,7 +459,7 @@ def import_bvh(
     max_frames: int | None = None,
     val_takes: int | None = 0,
     test_takes: int | None = 0,
-    mean_std: bool = False,
+    mean_std: bool | None = False,
     licence: str | None = None,
     captions: int = 3,
     mode: ImportMode = "new",
@@ -473,9 +474,10 @@ def import_bvh(
     ``max_frames`` cuts long takes (``cut_bounds``); ``val_takes``/``test_takes`` > 0 split takes per (content,
     style) pair (``split_takes``) into ``train.txt``/``val.txt``/``test.txt``/``train_val.txt`` beside ``all.txt``
     (HumanML3D) or the ``split`` column (Parquet); ``mean_std`` writes ``Mean.npy``/``Std.npy`` from the train
-    split (every clip without splits). ``val_takes``/``test_takes`` None: ``auto_takes`` per pair when the files
-    carry take ids (``carry_take_ids``), else no splits. ``labels_from`` reads labels from file names
-    (``LabelPattern``). ``licence`` names the data's licence; Bandai file names imply theirs.
+    split (every clip without splits; None: when the clips allow, else a note in ``notes``).
+    ``val_takes``/``test_takes`` None: ``auto_takes`` per pair when the files carry take ids (``carry_take_ids``),
+    else no splits. ``labels_from`` reads labels from file names (``LabelPattern``). ``licence`` names the data's
+    licence; Bandai file names imply theirs.
     ``progress(stage, files done, files, {})`` hears of each file read.
     """
     started = time.perf_counter()
@@ -519,7 +521,7 @@ class ImportOptions:
     max_frames: int | None
     val_takes: int | None
     test_takes: int | None
-    mean_std: bool
+    mean_std: bool | None
     licence: str | None
     captions: int
     labels: LabelPattern | None = None
@@ -607,10 +609,18 @@ def _import_into(
         for name in (*SPLITS, "train_val"):
             target.merge_lines(f"{name}.txt")
     summary.splits = {name: len(members) for name, members in split_ids.items()} if splitting else {}
-    if ids and (
-        o.mean_std or (target.appending and (stage / "Mean.npy").is_file())
-    ):  # none: the caller says why  # never leave stale statistics
-        compute_mean_std(_train_motions(stage, o.fmt)).save(stage)
+    wrote_stats = False
+    # never leave stale statistics; with no clip there are none (the caller says why)
+    if ids and (o.mean_std is not False or (target.appending and (stage / "Mean.npy").is_file())):
+        try:
+            compute_mean_std(_train_motions(stage, o.fmt)).save(stage)
+            wrote_stats = True
+        except MotionDataError as err:
+            if o.mean_std:  # asked for: an error; by default: a note
+                raise
+            (stage / "Mean.npy").unlink(missing_ok=True)
+            (stage / "Std.npy").unlink(missing_ok=True)
+            summary.notes.append(f"no Mean/Std written: {err.reason} (too few or too similar train clips)")
     if licence:
         _write_licence(stage, licence, bandai, _licence_file(src, files))
     meta = CorpusMeta(
@@ -621,7 +631,7 @@ def _import_into(
         commercial_use=False if bandai else None,
         cut_rule=CUT_RULE.format(n=o.max_frames) if o.max_frames else None,
         split_rule=_split_rule(o) if splitting else None,
-        mean_std=("train split" if splitting else "all clips") if o.mean_std else None,
+        mean_std=("train split" if splitting else "all clips") if wrote_stats else None,
         captions_per_clip=o.captions,
         takes=summary.takes,
         clips=summary.clips,
