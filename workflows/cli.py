@@ -222,6 +222,7 @@ def demo(
     console.print(
         f"corpus {result.corpus}; expanded corpus {e.out}: {e.originals} original + {e.stylized} stylized clips"
     )
+    console.print(f"3D viewer: open file://{result.viewer.page.resolve()}", highlight=False, soft_wrap=True)
     console.print(
         f"next: motionaug preview {result.run.run_dir} --grid 6   |   motionaug evaluate {result.run.run_dir}"
     )

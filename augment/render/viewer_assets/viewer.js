@@ -113,7 +113,11 @@
     drawRows();
   }
 
-  function fmt(v) { return v === null || v === undefined ? "–" : typeof v === "number" ? (+v.toPrecision(3)).toString() : v; }
+  function fmt(v, name) {  // scores with 3 decimals, counts as they are
+    if (v === null || v === undefined) return "–";
+    if (typeof v !== "number" || name === "frames") return String(v);
+    return Math.abs(v) < 1000 ? v.toFixed(3) : v.toPrecision(4);
+  }
 
   function drawRows() {
     var list = el("list"), c = V.index.clips, name = el("sort").value;
@@ -127,7 +131,7 @@
       div.title = c.caption[i];
       var score = document.createElement("span");
       score.className = "score";
-      score.textContent = fmt(scoreOf(name, i));
+      score.textContent = name === "id" ? "" : fmt(scoreOf(name, i), name);
       div.appendChild(score);
       div.appendChild(document.createTextNode(c.id[i] + (c.style[i] ? " · " + c.style[i] : "")));
       div.onclick = (function (id) { return function () { V.select(id); }; })(c.id[i]);
