@@ -140,11 +140,13 @@ def corpus_import_bvh(
     """Retarget BVH files to the t2m skeleton at 20 fps, caption them from their labels and write a training-ready
     corpus: takes cut at 196 frames, take-level train/val/test splits when the files carry take ids, Mean/Std of the
     train split (docs/bandai.md)."""
-    from motionaug.augment.corpus.import_bvh import import_bvh
+    from motionaug.augment.corpus.import_bvh import LabelPattern, import_bvh
 
     with usage_errors():
         if append and force:
             raise MotionDataError("--append/--force", "give one: --append adds to the corpus, --force replaces it")
+        if labels_from:
+            LabelPattern(labels_from)  # a pattern with no field is a usage error, before anything is read
     note_output(out)
     with console.status(f"importing BVH from {src}"), off_terminal("import-bvh", log_every, "files") as beat:
         summary = run_safely(

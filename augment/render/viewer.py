@@ -372,12 +372,16 @@ def write_corpus_viewer(
 ) -> ViewerSummary:
     """``viewer.html`` + ``viewer/`` of a corpus's clips (all, or ``ids``) into ``out_dir``."""
     corpus = Corpus(Path(corpus_path), feature_dim=skeleton.feature_dim)
-    wanted = set(ids) if ids is not None else None
+    clips: Iterable[MotionClip] = corpus
+    if ids is not None:  # read only those, and refuse an unknown id before writing anything
+        clips, rejects = corpus.load(list(dict.fromkeys(ids)))
+        if rejects:
+            raise MotionDataError("--ids", f"no clip with id {rejects[0].id!r} in {corpus_path} ({rejects[0].reason})")
     chunks = ChunkWriter(start_folder(Path(out_dir)) / "chunks", per_chunk)
     entries: list[ViewerEntry] = []
     seen: set[str] = set()
-    for clip in corpus:
-        if clip.id in seen or (wanted is not None and clip.id not in wanted):
+    for clip in clips:
+        if clip.id in seen:
             continue
         seen.add(clip.id)
         captions = [c.text for c in clip.captions]
@@ -389,8 +393,6 @@ def write_corpus_viewer(
         entry.chunk = chunks.add(f"src:{clip.id}", record)
         entries.append(entry)
     chunks.flush()
-    if wanted is not None and wanted - seen:
-        raise MotionDataError("--ids", f"no clip with id {sorted(wanted - seen)[0]!r} in {corpus_path}")
     if not entries:
         raise MotionDataError(str(corpus_path), "corpus has no clips")
     title = f"corpus {Path(corpus_path).name}"
