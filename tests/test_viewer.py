@@ -154,3 +154,18 @@ def test_a_smaller_rebuild_leaves_no_chunk_of_the_last(tiny, tmp_path: Path) -> 
     write_corpus_viewer(tiny["corpus"], tmp_path, per_chunk=1)
     write_corpus_viewer(tiny["corpus"], tmp_path, ids=[next(iter(Corpus(tiny["corpus"]))).id])
     assert [f.name for f in (tmp_path / "viewer" / "chunks").iterdir()] == ["c00000.js"]
+
+
+def test_evaluate_writes_the_viewer_and_stands_without_it_when_the_corpus_is_gone(tmp_path: Path) -> None:
+    corpus = make_corpus(tmp_path / "corpus", n_clips=10)
+    run = build_run(corpus, tmp_path / "run", unit_size=4).output
+    runner = CliRunner()
+    result = runner.invoke(app, ["evaluate", str(run)])
+    assert result.exit_code == 0, result.output
+    assert (run / "viewer.html").is_file() and "viewer.html" in (run / "report.md").read_text(encoding="utf-8")
+    corpus.rename(tmp_path / "moved")
+    (run / "viewer.html").unlink()
+    result = runner.invoke(app, ["evaluate", str(run)])
+    assert result.exit_code == 0, result.output
+    assert "no 3D viewer:" in result.output and "corpus not found" in result.output
+    assert not (run / "viewer.html").exists() and (run / "report.html").is_file()

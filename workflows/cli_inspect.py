@@ -108,7 +108,7 @@ def evaluate_command(
     """Score every stylized clip; write report.md, report.html and scores.parquet into the run folder."""
     from motionaug.augment.eval.evaluation import evaluate_run, write_scores
     from motionaug.augment.eval.report import SUMMARY_COLUMNS, format_value, write_report
-    from motionaug.augment.render.viewer import write_run_viewer
+    from motionaug.augment.render.viewer import viewer_beside_report
 
     note_output(run)
     with console.status(f"evaluating {run}"), off_terminal("evaluate", unit="clips") as beat:
@@ -117,7 +117,7 @@ def evaluate_command(
         )
         scores = run_safely(lambda: write_scores(evaluation))
     with console.status(f"writing the 3D viewer of {run}"), off_terminal("evaluate viewer"):
-        viewer = run_safely(lambda: write_run_viewer(run))
+        viewer, why_not = run_safely(lambda: viewer_beside_report(run))
     md, page = run_safely(lambda: write_report(evaluation))
     shown = [
         c
@@ -133,4 +133,7 @@ def evaluate_command(
     for note in evaluation.notes:
         console.print(f"[yellow]not measured:[/yellow] {note}", highlight=False)
     console.print(f"wrote {md}, {page} and {scores}")
-    print_viewer(viewer)
+    if viewer is not None:
+        print_viewer(viewer)
+    else:
+        console.print(f"[yellow]no 3D viewer:[/yellow] {why_not}", highlight=False, soft_wrap=True)

@@ -360,6 +360,15 @@ def write_run_viewer(
     return write_index(out_dir, index, title, chunks)
 
 
+def viewer_beside_report(run_dir: Path) -> tuple[ViewerSummary | None, str | None]:
+    """The run's viewer for ``motionaug evaluate``: (summary, None), or (None, why) when the run's data cannot give
+    one (its corpus gone, say); the evaluation stands without it."""
+    try:
+        return write_run_viewer(run_dir), None
+    except MotionDataError as err:
+        return None, str(err).splitlines()[0]
+
+
 # ---- a corpus --------------------------------------------------------------------------------------
 
 

@@ -79,6 +79,10 @@
     var timer = null;
     el("search").oninput = function () { clearTimeout(timer); timer = setTimeout(refresh, 120); };
     el("list").onscroll = drawRows;
+    window.addEventListener("resize", function () {
+      drawRows();
+      if (V.mode === "strips" && V.panels.length) drawStrips(); else draw();
+    });
     setup3d();
     refresh();
     if (order.length) V.select(c.id[order[0]]);
