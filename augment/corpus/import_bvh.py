@@ -324,7 +324,7 @@ def take_number(take_id: str) -> int | None:
 
 def auto_takes(n_takes: int) -> int:
     """Val (and test) takes of a pair with ``n_takes`` takes when none are given: ``AUTO_FRACTION`` of them, at
-    least one (3 of Bandai-2's 19 or so per pair, its paper's protocol)."""
+    least one; on Bandai-2 this is the paper's protocol (docs/bandai.md)."""
     return max(1, round(AUTO_FRACTION * n_takes))
 
 

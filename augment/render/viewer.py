@@ -9,8 +9,8 @@ added as ``<script>`` tags when a clip is picked, so a 10,000-clip run opens as 
 WebGL the page draws key-pose strips on a 2D canvas from the same data.
 
 Encoding, per clip: the root track as float32 (T, 3) and the other joints relative to the root as int16
-millimetres (T, J, 3), base64 (at most 0.5 mm off), plus the foot contacts of the HumanML3D rule as one hex digit
-per frame: 193 bytes a frame on disk for the 22-joint skeleton, about a fifth of the frame's 263 float32 features.
+millimetres (T, J, 3), base64 (at most half a millimetre off), plus the foot contacts of the HumanML3D rule as one
+hex digit per frame: a fraction of the shards' float32 features (bench/RESULTS.md has the disk a large run takes).
 
 Clocks: every panel plays on one clock in seconds, each at its own fps; a shorter clip holds its last frame until
 the longest ends, then all loop. ``limb_agreement`` (the default sort, worst first) is the mean Pearson
