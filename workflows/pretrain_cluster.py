@@ -17,6 +17,7 @@ project rotates step folders that an old state would still list). ``OUT`` must b
 
 from __future__ import annotations
 
+import logging
 import os
 from pathlib import Path
 from typing import Any
@@ -29,6 +30,8 @@ from ray.train.torch import TorchConfig, TorchTrainer, get_device
 from motionaug.augment.training.pretrain import CHECKPOINTS, Parallel, PretrainConfig, pretrain
 from motionaug.schemas.errors import MotionDataError
 from motionaug.workflows.progress_log import Heartbeat
+
+LOG = logging.getLogger(__name__)
 
 MAX_FAILURES = 2
 RAY_TRAIN_SNAPSHOT = "checkpoint_manager_snapshot.json"  # Ray Train's run state in its experiment folder
@@ -51,7 +54,7 @@ def _worker(setup: dict[str, Any]) -> None:
         pretrain(setup["corpus"], setup["out"], config, None, parallel=parallel, device=get_device())
         return
     # rank 0's progress as a line every log_every seconds (Ray sends worker output to the driver and the job log)
-    with Heartbeat("pretrain (rank 0)", every=setup.get("log_every", 10.0)) as beat:
+    with Heartbeat("pretrain (rank 0)", every=setup.get("log_every", 10.0), write=LOG.info) as beat:
         pretrain(setup["corpus"], setup["out"], config, beat.update, parallel=parallel, device=get_device())
 
 

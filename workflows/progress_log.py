@@ -147,7 +147,11 @@ class Heartbeat:
     def _beat(self) -> None:
         while not self._stop.wait(self.every):
             with self._lock:
-                self._say(self.line())
+                if self.stage is not None and self.total and self.done >= self.total:  # between stages
+                    elapsed = format_seconds(self.clock() - self.started)
+                    self._say(f"{self.command}: working (after {self.stage}), {elapsed} elapsed")
+                else:
+                    self._say(self.line())
 
     def __enter__(self) -> Heartbeat:
         self._thread = threading.Thread(target=self._beat, name=f"{self.command}-progress", daemon=True)
