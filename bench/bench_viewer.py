@@ -98,7 +98,7 @@ def build(work: Path, bases: int, reuse: int, styles: list[str]) -> dict:
 def measure(page_path: Path, chromium: str, repeats: int) -> dict:
     from playwright.sync_api import sync_playwright
 
-    first, selects, searches, heaps = [], [], [], []
+    first, selects, searches, heaps, before_gc = [], [], [], [], []
     with sync_playwright() as manager:
         browser = manager.chromium.launch(executable_path=chromium)
         for _ in range(repeats):
@@ -123,6 +123,7 @@ def measure(page_path: Path, chromium: str, repeats: int) -> dict:
             )
             searches.append(t)  # filtering and re-sorting the list, less the input's 120 ms debounce
             cdp = page.context.new_cdp_session(page)
+            before_gc.append(cdp.send("Runtime.getHeapUsage")["usedSize"] / 2**20)
             cdp.send("HeapProfiler.collectGarbage")
             heaps.append(cdp.send("Runtime.getHeapUsage")["usedSize"] / 2**20)
             page.close()
@@ -134,6 +135,7 @@ def measure(page_path: Path, chromium: str, repeats: int) -> dict:
         "select_ms_p90": float(np.percentile(selects, 90)),
         "search_ms_median": statistics.median(searches),
         "js_heap_mb_max": max(heaps),
+        "js_heap_mb_before_gc_max": max(before_gc),
     }
 
 
