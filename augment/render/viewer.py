@@ -21,6 +21,7 @@ and its content clip, the stylized one resampled to the content's length: a cont
 from __future__ import annotations
 
 import base64
+import html
 import json
 import shutil
 from collections.abc import Iterable, Iterator, Sequence
@@ -197,16 +198,10 @@ def write_index(out_dir: Path, index: dict, title: str, chunks: ChunkWriter) -> 
     text = f"motionaugIndex({json.dumps(index, separators=(',', ':'))});\n"
     atomic_write_text(data / "index.js", text)
     template = resources.files("motionaug.augment.render") / "viewer_assets" / "viewer.html"
-    page = template.read_text(encoding="utf-8").replace("{{TITLE}}", _html_escape(title))
+    page = template.read_text(encoding="utf-8").replace("{{TITLE}}", html.escape(title))
     atomic_write_text(out_dir / VIEWER_HTML, page)
     total = sum(f.stat().st_size for f in data.rglob("*") if f.is_file())
     return ViewerSummary(out_dir / VIEWER_HTML, len(index["clips"]["id"]), chunks.count, total)
-
-
-def _html_escape(text: str) -> str:
-    import html
-
-    return html.escape(text)
 
 
 def make_index(
@@ -271,8 +266,8 @@ def run_entries(run_dir: Path, skeleton: Skeleton = T2M) -> list[ViewerEntry]:
     """Every stylized clip of a run as a clip-list row, with its limb agreement and evaluation scores."""
     run = RunDir(run_dir)
     shards = verified_shards(run, complete=False)
-    columns = ["output_id", "source_id", "style", "content", "n_frames", "n_feats", "motion", "captions"]
-    rows = list(iter_shard_rows(run_dir, [c for c in columns if c != "motion"] + ["original_captions"], files=shards))
+    columns = ["output_id", "source_id", "style", "content", "n_frames", "captions", "original_captions"]
+    rows = list(iter_shard_rows(run_dir, columns, files=shards))  # no motion: the list's rows only
     if not rows:
         raise MotionDataError(str(run_dir), "run has no stylized clips yet")
     corpus = Corpus(Path(run.config()["corpus"]["path"]), feature_dim=skeleton.feature_dim)
