@@ -105,6 +105,11 @@ def test_worst_subset_is_the_lowest_limb_agreement_and_ids_take_sources_or_outpu
     assert [e.id for e in choose(entries, ids=["b__old", "c__old"])] == ["b__old", "c__old"]
     with pytest.raises(MotionDataError, match="no clip with id 'd'"):
         choose(entries, ids=["d"])
+    for entry, skate in zip(entries, (0.1, 0.5, 0.3, None, 0.2)):
+        entry.scores["foot_skating"] = skate  # lower is better: the worst skate most
+    assert [e.id for e in choose(entries, worst=2, by="foot_skating")] == ["a__proud", "b__old"]
+    with pytest.raises(MotionDataError, match="unknown score 'nope'"):
+        choose(entries, worst=1, by="nope")
 
 
 def test_limb_agreement_is_one_for_a_retimed_copy_and_lower_for_other_motion() -> None:

@@ -14,7 +14,7 @@ from rich.table import Table
 
 from motionaug.schemas.errors import MotionDataError
 from motionaug.workflows.cli_app import app, console, note_output, off_terminal, run_safely, usage_errors
-from motionaug.workflows.cli_view import IdsOption, print_viewer, split_ids
+from motionaug.workflows.cli_view import ByOption, IdsOption, print_viewer, split_ids
 
 
 @app.command("preview")
@@ -30,8 +30,9 @@ def preview_command(
     ] = False,
     ids: IdsOption = None,
     worst: Annotated[
-        int | None, typer.Option(min=1, help="With --html: the N clips with the lowest limb agreement (a run).")
+        int | None, typer.Option(min=1, help="With --html: the N worst clips of a run by --by (limb agreement).")
     ] = None,
+    by: ByOption = "limb_agreement",
 ) -> None:
     """Animate a clip beside its stylized version (a run), or one clip of a corpus; --grid: a PNG contact sheet;
     --html: the 3D viewer of a chosen subset (default folder: previews/viewer in the run, ./previews/viewer-NAME)."""
@@ -42,7 +43,7 @@ def preview_command(
     if html:
         with usage_errors():
             _check_html_args(path, grid, worst, is_run)
-        _preview_html(path, out, split_ids(ids) or ([clip] if clip else None), worst, is_run)
+        _preview_html(path, out, split_ids(ids) or ([clip] if clip else None), worst, by, is_run)
         return
     with usage_errors():
         _check_preview_args(path, clip, style, grid, is_run)
@@ -57,14 +58,16 @@ def preview_command(
     console.print(f"wrote {written}")
 
 
-def _preview_html(path: Path, out: Path | None, ids: list[str] | None, worst: int | None, is_run: bool) -> None:
+def _preview_html(
+    path: Path, out: Path | None, ids: list[str] | None, worst: int | None, by: str, is_run: bool
+) -> None:
     from motionaug.augment.render.viewer import write_corpus_viewer, write_run_viewer
 
     target = out or (path / "previews" / "viewer" if is_run else Path("previews") / f"viewer-{path.name}")
     note_output(target)
     with console.status("writing the viewer"):
         if is_run:
-            summary = run_safely(lambda: write_run_viewer(path, target, ids, worst))
+            summary = run_safely(lambda: write_run_viewer(path, target, ids, worst, by=by))
         else:
             summary = run_safely(lambda: write_corpus_viewer(path, target, ids))
     print_viewer(summary)

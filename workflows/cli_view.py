@@ -7,13 +7,21 @@ call ``augment.render.viewer``, print where the page is. ``motionaug preview RUN
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import typer
 
 from motionaug.schemas.errors import MotionDataError
 from motionaug.workflows.cli_app import app, console, corpus_app, note_output, run_safely, usage_errors
 
+ByOption = Annotated[
+    Literal["limb_agreement", "content_score", "style_prob", "foot_skating", "contact_agreement", "mpjpe"],
+    typer.Option(
+        "--by",
+        help="Score --worst ranks by: limb_agreement (no classifier), or scores.parquet's content_score, style_prob, "
+        "foot_skating, contact_agreement, mpjpe.",
+    ),
+]
 IdsOption = Annotated[
     list[str] | None, typer.Option("--ids", help="Clip ids to show, comma-separated or repeated (default: all).")
 ]
@@ -42,8 +50,9 @@ def view_command(
     out: Annotated[Path | None, typer.Option(help="Folder for viewer.html and viewer/ (default: the run).")] = None,
     ids: IdsOption = None,
     worst: Annotated[
-        int | None, typer.Option(min=1, help="Only the N clips with the lowest limb agreement with their source.")
+        int | None, typer.Option(min=1, help="Only the N worst clips by --by (default: limb agreement).")
     ] = None,
+    by: ByOption = "limb_agreement",
 ) -> None:
     """Write the run's 3D viewer (viewer.html + viewer/ data chunks): content beside stylized, worst first."""
     from motionaug.augment.outputs.run_dir import RunDir
@@ -54,7 +63,7 @@ def view_command(
             raise MotionDataError(str(run), "not a run folder; for a corpus use `motionaug corpus view`")
     note_output(out or run)
     with console.status("writing the viewer"):
-        summary = run_safely(lambda: write_run_viewer(run, out, split_ids(ids), worst))
+        summary = run_safely(lambda: write_run_viewer(run, out, split_ids(ids), worst, by=by))
     print_viewer(summary)
 
 

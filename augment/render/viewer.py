@@ -295,9 +295,13 @@ def run_entries(run_dir: Path, skeleton: Skeleton = T2M) -> list[ViewerEntry]:
 
 
 def choose(
-    entries: Sequence[ViewerEntry], ids: Iterable[str] | None = None, worst: int | None = None
+    entries: Sequence[ViewerEntry],
+    ids: Iterable[str] | None = None,
+    worst: int | None = None,
+    by: str = LIMB_AGREEMENT,
 ) -> list[ViewerEntry]:
-    """The entries named by ``ids`` (output ids or source ids), else the ``worst`` by limb agreement, else all."""
+    """The entries named by ``ids`` (output ids or source ids), then the ``worst`` N by the score ``by`` (lowest
+    first, highest for a score where lower is better), else all; clips without that score are left out."""
     chosen = list(entries)
     if ids is not None:
         wanted = set(ids)
@@ -306,8 +310,12 @@ def choose(
         if missing:
             raise MotionDataError("--ids", f"no clip with id {sorted(missing)[0]!r}")
     if worst is not None:
-        scored = [e for e in chosen if e.scores.get(LIMB_AGREEMENT) is not None]
-        chosen = sorted(scored, key=lambda e: e.scores[LIMB_AGREEMENT])[:worst]
+        higher_better = {LIMB_AGREEMENT: True} | {n: hb for n, (_, hb) in EVALUATION_SCORES.items()}
+        if by not in higher_better:
+            raise MotionDataError("--by", f"unknown score {by!r}; one of {sorted(higher_better)}")
+        scored = [e for e in chosen if e.scores.get(by) is not None]
+        sign = 1 if higher_better[by] else -1
+        chosen = sorted(scored, key=lambda e: (sign * e.scores[by], e.id))[:worst]
     return chosen
 
 
@@ -318,12 +326,13 @@ def write_run_viewer(
     worst: int | None = None,
     per_chunk: int = CLIPS_PER_CHUNK,
     skeleton: Skeleton = T2M,
+    by: str = LIMB_AGREEMENT,
 ) -> ViewerSummary:
-    """``viewer.html`` + ``viewer/`` of a run's stylized clips (all, ``ids``, or the ``worst`` N) into ``out_dir``
-    (default: the run folder)."""
+    """``viewer.html`` + ``viewer/`` of a run's stylized clips (all, ``ids``, or the ``worst`` N by ``by``) into
+    ``out_dir`` (default: the run folder)."""
     run_dir = Path(run_dir)
     out_dir = Path(out_dir) if out_dir is not None else run_dir
-    entries = choose(run_entries(run_dir, skeleton), ids, worst)
+    entries = choose(run_entries(run_dir, skeleton), ids, worst, by)
     if not entries:
         raise MotionDataError(str(run_dir), "no stylized clip to show")
     chunks = ChunkWriter(start_folder(out_dir) / "chunks", per_chunk)
