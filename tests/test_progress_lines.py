@@ -90,7 +90,7 @@ def test_pretrain_into_a_pipe_prints_a_line_at_least_every_interval(tmp_path: Pa
     assert max(gaps) < 3.0, (gaps, text)  # --log-every 1; slack for a busy machine
 
 
-@pytest.mark.parametrize("command", ["import-bvh", "evaluate"])
+@pytest.mark.parametrize("command", ["import-bvh", "evaluate", "export"])
 def test_other_long_commands_print_progress_lines_off_a_terminal(
     command: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -101,6 +101,12 @@ def test_other_long_commands_print_progress_lines_off_a_terminal(
         assert result.exit_code == 0, result.output
         assert "import-bvh read 1/1 files" in result.output and "import-bvh: finished after" in result.output
         assert "no Mean/Std written" in result.output  # one take: by default a warning, not an error
+    elif command == "export":
+        torch.set_num_threads(1)
+        run = build_run(make_corpus(tmp_path / "corpus", n_clips=10), tmp_path / "run", unit_size=4).output
+        result = runner.invoke(app, ["export", str(run), "--out", str(tmp_path / "x")])
+        assert result.exit_code == 0, result.output
+        assert "export originals 10 clips" in result.output and "export stylized 20/20 clips (100%)" in result.output
     else:
         torch.set_num_threads(1)
         run = build_run(make_corpus(tmp_path / "corpus", n_clips=10), tmp_path / "run", unit_size=4).output

@@ -568,8 +568,10 @@ def export_command(
             f"largest joint error {b.max_error_m * 1000:.3f} mm"
         )
         return
-    with console.status(f"exporting {run} to {out}"), off_terminal("export", unit="clips"):
-        s = run_safely(lambda: export_run(run, out, fmt, min_content_score, keep_mean_std))
+    with console.status(f"exporting {run} to {out}"), off_terminal("export", unit="clips") as beat:
+        s = run_safely(
+            lambda: export_run(run, out, fmt, min_content_score, keep_mean_std, progress=beat.update if beat else None)
+        )
     console.print(
         f"wrote {s.originals} original + {s.stylized} stylized clips to {s.out} ({s.format}); "
         f"splits {_counts(s.splits)}; "

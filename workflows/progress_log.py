@@ -74,6 +74,11 @@ class LineProgress:
         return f"{head}, {rate:.2f}/s, {eta}"
 
 
+def _count(done: int, total: int) -> str:
+    """``3/10``, or ``3`` when the total is not known (0)."""
+    return f"{done}/{total}" if total else str(done)
+
+
 def _print(line: str) -> None:
     print(line, file=sys.stdout, flush=True)
 
@@ -123,7 +128,7 @@ class Heartbeat:
                 if self.stage is not None and self.done < self.total:
                     self._say(self.line())  # the last state of a stage left early
                 self.stage, self.stage_started, self.first = stage, self.clock(), done
-                self._say(f"{self.command} {stage} {done}/{total} {self.unit}: started")
+                self._say(f"{self.command} {stage} {_count(done, total)} {self.unit}: started")
             self.done, self.total, self.metrics = done, total, dict(metrics or {})
             if total and done >= total:
                 self._say(self.line())
@@ -134,7 +139,7 @@ class Heartbeat:
         if self.stage is None:
             return f"{self.command}: working, {format_seconds(now - self.started)} elapsed"
         elapsed = max(now - self.stage_started, 1e-9)
-        head = f"{self.command} {self.stage} {self.done}/{self.total} {self.unit}"
+        head = f"{self.command} {self.stage} {_count(self.done, self.total)} {self.unit}"
         if self.total:
             head += f" ({100 * self.done // self.total}%)"
         loss = next((f", {k} {v:.4f}" for k, v in self.metrics.items() if "loss" in k), "")
