@@ -8,7 +8,7 @@ export RAY_USAGE_STATS_ENABLED := 0
 export HF_HUB_OFFLINE := 1
 export TRANSFORMERS_OFFLINE := 1
 
-.PHONY: install test test-fast lint demo clean
+.PHONY: install test test-fast lint demo browser docs-screenshot clean
 
 install: $(STAMP)
 
@@ -32,6 +32,18 @@ test-fast: install
 
 demo: install
 	$(VENV)/bin/motionaug demo
+
+# Opt-in: the system Chromium for tests/test_viewer_browser.py (Debian's package, as root; never a browser download).
+# `make install` and `make demo` never need it; without it the browser tests skip (they fail under CI=true).
+browser:
+	@if command -v chromium >/dev/null 2>&1; then echo "chromium: $$(command -v chromium)"; \
+	elif [ "$$(id -u)" = 0 ]; then apt-get update -qq && apt-get install -y -qq chromium; \
+	else echo "run as root: apt-get install -y chromium (or set MOTIONAUG_CHROMIUM=/path/to/chromium)"; exit 1; fi
+
+# The README's viewer picture, from a run (default: the demo's); needs Chromium (make browser).
+RUN ?= demo-out/run
+docs-screenshot: install
+	$(PY) docs/viewer_screenshot.py $(RUN) --out docs/viewer.png
 
 clean:
 	rm -rf $(VENV) .pytest_cache build *.egg-info

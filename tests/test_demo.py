@@ -30,6 +30,7 @@ def test_demo_runs_end_to_end_and_resumes(tmp_path: Path) -> None:
             "onthefly"
         }
         assert (tmp_path / "base_models" / "base.json").is_file()
+        assert first.viewer.page == tmp_path / "run" / "viewer.html" and first.viewer.clips == rows
         second = run_demo(tmp_path, clips=400, size="tiny")
         assert second.run.transferred == 0 and second.run.manifest.rows == rows
         assert all(

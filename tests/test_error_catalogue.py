@@ -55,6 +55,15 @@ FAST = [
     Case("missing-corpus", ("run", "nocorpus.yaml"), 2, "corpus.path"),
     Case("missing-example-file", ("run", "nofile.yaml"), 2, "nope.npy not found"),
     Case("preview-args", ("preview", "corpus", "--clip", "000001", "--style", "proud"), 2, "is a corpus, not a run"),
+    Case("preview-html-worst-of-corpus", ("preview", "corpus", "--html", "--worst", "3"), 2, "has no content scores"),
+    Case("view-not-a-run", ("view", "corpus"), 2, "not a run folder; for a corpus use"),
+    Case("viewer-unknown-id", ("corpus", "view", "corpus", "--ids", "nope", "--out", "v"), 1, "no clip with id 'nope'"),
+    Case(
+        "labels-from-without-fields",
+        ("corpus", "import-bvh", "takes", "--out", "n", "--labels-from", "plain.bvh"),
+        2,
+        "has no {field}",
+    ),
     # data and outputs (exit 1)
     Case(
         "run-into-foreign-folder", ("run", "good.yaml", "--out", "mine"), 1, "is not empty and is not a motionaug run"

@@ -21,6 +21,7 @@ from motionaug.augment.corpus.import_bvh import (
     BANDAI_LICENCE,
     MDM_MIN_FRAMES,
     TOO_SHORT_FILE,
+    auto_takes,
     corpus_licence,
     cut_bounds,
     import_bvh,
@@ -639,3 +640,69 @@ def test_real_bandai2_pair_imports_training_ready(tmp_path: Path) -> None:
         i for i in ids(out / "train.txt") if len(motion(out, i)) >= MDM_MIN_FRAMES
     }
     assert corpus_licence(out) == BANDAI_LICENCE
+
+
+# ---- training-ready by default, labels from file names ----------------------------------------------------------
+
+
+def test_cli_with_no_flags_writes_what_the_bandai2_protocol_writes(dataset: Path, corpus: Path, tmp_path: Path) -> None:
+    """Pairs of 4-5 takes: 15% rounds to one val and one test take each, as the ``corpus`` fixture's explicit flags."""
+    from motionaug.workflows.cli import app
+
+    out = tmp_path / "plain"
+    result = CliRunner().invoke(app, ["corpus", "import-bvh", str(dataset), "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    for name in ("all.txt", "train.txt", "val.txt", "test.txt", "train_val.txt"):
+        assert ids(out / name) == ids(corpus / name), name
+    assert (out / "Mean.npy").read_bytes() == (corpus / "Mean.npy").read_bytes()
+    assert max(len(np.load(f)) for f in (out / "new_joint_vecs").glob("*.npy")) <= BANDAI2_CLIP_FRAMES
+    assert all(mdm_text2motion_v2(out, split) for split in ("train", "val", "test"))
+    assert json.loads((out / "corpus.json").read_text(encoding="utf-8"))["split_rule"].startswith("per (content")
+
+
+def test_auto_takes_scale_with_the_pair_and_need_take_ids() -> None:
+    assert [auto_takes(n) for n in (1, 4, 7, 10, 19, 40)] == [1, 1, 1, 2, 3, 6]
+    pairs = [(f"t_{k:02d}", ("walk", "old")) for k in range(1, 20)]
+    split = split_takes(pairs, None, None)
+    assert [split[f"t_{k:02d}"] for k in range(13, 20)] == ["train"] + ["val"] * 3 + ["test"] * 3
+    assert sum(v == "train" for v in split.values()) == 13
+
+
+def write_style_set(root: Path) -> Path:
+    """``{style}_{take}_{part}.bvh``: two styles, three takes each, two parts per take (a copy of the fixture)."""
+    root.mkdir(parents=True)
+    for style in ("angry", "happy"):
+        for take in (1, 2, 3):
+            for part in ("a", "b"):
+                bvh = synthetic_bvh(60 + take, 0.0 if part == "a" else 4.0)  # standing and walking: feet vary
+                (root / f"{style}_{take:02d}_{part}.bvh").write_text(bvh, encoding="utf-8")
+    return root
+
+
+def test_labels_from_reads_styles_and_takes_from_names_and_splits_by_take(tmp_path: Path) -> None:
+    from motionaug.workflows.cli import app
+
+    src, out = write_style_set(tmp_path / "set"), tmp_path / "c"
+    args = ["corpus", "import-bvh", str(src), "--out", str(out), "--labels-from", "{style}_{take}_{part}.bvh"]
+    result = CliRunner().invoke(app, [*args, "--content", "walk"])
+    assert result.exit_code == 0, result.output
+    labels = read_labels(out)
+    assert {k: v["style"] for k, v in labels.items()} == {
+        f"{s}_{t:02d}_{p}": s for s in ("angry", "happy") for t in (1, 2, 3) for p in "ab"
+    }
+    # three takes a pair: take 3 test, take 2 val, take 1 train; both parts of a take in one split
+    for split, take in (("train", 1), ("val", 2), ("test", 3)):
+        assert ids(out / f"{split}.txt") == [f"{s}_{take:02d}_{p}" for s in ("angry", "happy") for p in "ab"]
+    assert (out / "Mean.npy").is_file()
+    unlabelled = CliRunner().invoke(app, [*args[:4], str(tmp_path / "n"), *args[5:]])
+    assert unlabelled.exit_code == 1 and "has no {content}; pass --content" in unlabelled.output
+
+
+def test_a_name_that_does_not_fit_the_pattern_is_a_reject_and_fields_are_checked(tmp_path: Path) -> None:
+    src = write_style_set(tmp_path / "set")
+    (src / "stray.bvh").write_text(synthetic_bvh(60, 1.0), encoding="utf-8")
+    summary = import_bvh(src, tmp_path / "c", content="walk", labels_from="{style}_{take}_{part}.bvh")
+    assert [r.id for r in summary.rejects] == ["stray"]
+    assert "does not match --labels-from" in summary.rejects[0].reason
+    with pytest.raises(MotionDataError, match="has no"):
+        import_bvh(src, tmp_path / "d", content="walk", labels_from="plain.bvh")

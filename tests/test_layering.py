@@ -20,8 +20,8 @@ AUGMENT_ORDER = [
     "text",  # caption tokens and revision
     "corpus",  # corpus formats, import, style examples
     "synth",  # the procedural style corpus
-    "render",  # previews
     "outputs",  # run folders, shards, export
+    "render",  # previews and the 3D viewer of a run or a corpus
     "training",  # pre-training the base models
     "methods",  # the style transfer methods
     "eval",  # run evaluation, reports, the held-out protocol

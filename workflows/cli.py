@@ -22,13 +22,15 @@ from rich.progress import (
 from rich.table import Table
 
 from motionaug.schemas.errors import MotionDataError
-from motionaug.workflows import cli_inspect, cli_stream  # noqa: F401  (register their commands on the app)
+from motionaug.workflows import cli_inspect, cli_stream, cli_view  # noqa: F401  (register their commands on the app)
 from motionaug.workflows.cli_app import (
     app,
     console,
     corpus_app,
     err_console,
+    log_interval,
     note_output,
+    off_terminal,
     run_safely,
     usage_errors,
 )
@@ -106,27 +108,47 @@ def corpus_import_bvh(
         Path | None, typer.Option(help="Joint map JSON/YAML for a rig other than Bandai's (docs/joint-map.md).")
     ] = None,
     max_frames: Annotated[
-        int | None, typer.Option(min=10, help="Cut longer takes into equal pieces of at most this many frames (196).")
+        int, typer.Option(min=0, help="Cut longer takes into equal pieces of at most this many frames (0: no cut).")
+    ] = 196,
+    val_takes: Annotated[
+        int | None,
+        typer.Option(min=0, help="Takes per (content, style) pair for val.txt (default: 15% of its takes, 0: none)."),
     ] = None,
-    val_takes: Annotated[int, typer.Option(min=0, help="Takes per (content, style) pair for val.txt.")] = 0,
-    test_takes: Annotated[int, typer.Option(min=0, help="Takes per (content, style) pair for test.txt.")] = 0,
-    mean_std: Annotated[bool, typer.Option(help="Write Mean.npy/Std.npy from the train split.")] = False,
+    test_takes: Annotated[
+        int | None,
+        typer.Option(min=0, help="Takes per (content, style) pair for test.txt (default: 15% of its takes, 0: none)."),
+    ] = None,
+    mean_std: Annotated[
+        bool | None,
+        typer.Option(help="Mean.npy/Std.npy from the train split (default: when the clips allow; else a warning)."),
+    ] = None,
+    labels_from: Annotated[
+        str | None,
+        typer.Option(help="Labels from file names, e.g. '{style}_{take}_{part}.bvh' (fields style, content, take)."),
+    ] = None,
     licence: Annotated[str | None, typer.Option(help="The data's licence (Bandai file names imply theirs).")] = None,
     captions: Annotated[int, typer.Option(min=1, help="Captions per clip.")] = 3,
     append: Annotated[
         bool, typer.Option("--append", help="Add to the corpus in --out; clips it already holds are skipped.")
     ] = False,
     force: Annotated[bool, typer.Option("--force", help="Replace the corpus in --out.")] = False,
+    log_every: Annotated[
+        float | None,
+        typer.Option(min=0.01, help="Off a terminal (a job's log): seconds between progress lines (default 10)."),
+    ] = None,
 ) -> None:
-    """Retarget BVH files to the t2m skeleton at 20 fps, caption them from their labels and write a corpus
-    (docs/bandai.md: the Bandai-2 protocol is --max-frames 196 --val-takes 3 --test-takes 3 --mean-std)."""
-    from motionaug.augment.corpus.import_bvh import import_bvh
+    """Retarget BVH files to the t2m skeleton at 20 fps, caption them from their labels and write a training-ready
+    corpus: takes cut at 196 frames, take-level train/val/test splits when the files carry take ids, Mean/Std of the
+    train split (docs/bandai.md)."""
+    from motionaug.augment.corpus.import_bvh import LabelPattern, import_bvh
 
     with usage_errors():
         if append and force:
             raise MotionDataError("--append/--force", "give one: --append adds to the corpus, --force replaces it")
+        if labels_from:
+            LabelPattern(labels_from)  # a pattern with no field is a usage error, before anything is read
     note_output(out)
-    with console.status(f"importing BVH from {src}"):
+    with console.status(f"importing BVH from {src}"), off_terminal("import-bvh", log_every, "files") as beat:
         summary = run_safely(
             lambda: import_bvh(
                 src,
@@ -135,17 +157,21 @@ def corpus_import_bvh(
                 content,
                 style,
                 joint_map,
-                max_frames=max_frames,
+                max_frames=max_frames or None,
                 val_takes=val_takes,
                 test_takes=test_takes,
                 mean_std=mean_std,
                 licence=licence,
                 captions=captions,
                 mode="append" if append else "force" if force else "new",
+                progress=beat.update if beat else None,
+                labels_from=labels_from,
             )
         )
     for reject in summary.rejects:
         err_console.print(f"[yellow]skipped[/yellow] {reject}", highlight=False)
+    for note in summary.notes:
+        err_console.print(f"[yellow]warning[/yellow] {note}", highlight=False)
     for split, pairs in summary.missing_pairs.items():
         err_console.print(f"[yellow]warning[/yellow] {split} has no clip of {', '.join(pairs)}", highlight=False)
     console.print(
@@ -198,6 +224,7 @@ def demo(
     console.print(
         f"corpus {result.corpus}; expanded corpus {e.out}: {e.originals} original + {e.stylized} stylized clips"
     )
+    console.print(f"3D viewer: open file://{result.viewer.page.resolve()}", highlight=False, soft_wrap=True)
     console.print(
         f"next: motionaug preview {result.run.run_dir} --grid 6   |   motionaug evaluate {result.run.run_dir}"
     )
@@ -236,6 +263,10 @@ def pretrain(
     address: Annotated[
         str | None, typer.Option(help="Ray cluster address for --workers (default: RAY_ADDRESS or an embedded Ray).")
     ] = None,
+    log_every: Annotated[
+        float | None,
+        typer.Option(min=0.01, help="Off a terminal (a job's log): seconds between progress lines (default 10)."),
+    ] = None,
 ) -> None:
     """Train the base models: the T2M diffusion prior and the motion encoder, and the evaluators (OUT/evaluators)."""
     from motionaug.augment.training.pretrain import PretrainConfig, ensure_base_models, fit_evaluators
@@ -247,13 +278,26 @@ def pretrain(
     options |= {name: str(path.resolve()) for name, path in mdm.items() if path is not None}
     config = run_safely(lambda: PretrainConfig.for_size(size, seed=seed, **options))
     if evaluators_only:
-        metrics = run_safely(lambda: fit_evaluators(corpus, out, config))
+        with off_terminal("pretrain evaluators", log_every):
+            metrics = run_safely(lambda: fit_evaluators(corpus, out, config))
         console.print(_facts(f"evaluators in {out}", [(k, f"{v:.4f}") for k, v in sorted(metrics.items())]))
         return
     if workers > 1 or gpus_per_worker > 0:
         from motionaug.workflows.pretrain_cluster import pretrain_on_ray
 
-        folder = run_safely(lambda: pretrain_on_ray(corpus, out, config, workers, gpus_per_worker, address))
+        with off_terminal("pretrain (driver)", log_every):
+            folder = run_safely(
+                lambda: pretrain_on_ray(corpus, out, config, workers, gpus_per_worker, address, log_interval(log_every))
+            )
+        _print_base_models(folder)
+        return
+    if not console.is_terminal:  # a job log, nohup, CI: lines at a fixed interval instead of bars
+        with off_terminal("pretrain", log_every) as beat:
+            folder = run_safely(
+                lambda: ensure_base_models(
+                    corpus, out, size, seed, progress=beat.update if beat else None, config=config
+                )
+            )
         _print_base_models(folder)
         return
     columns = (
@@ -517,14 +561,17 @@ def export_command(
     if fmt == "bvh":
         from motionaug.augment.outputs.bvh_export import export_bvh
 
-        b = run_safely(lambda: export_bvh(run, out, style))
+        with off_terminal("export bvh", unit="files"):
+            b = run_safely(lambda: export_bvh(run, out, style))
         console.print(
             f"wrote {b.files} BVH files to {b.out} ({b.with_positions} non-rigid, with position channels); "
             f"largest joint error {b.max_error_m * 1000:.3f} mm"
         )
         return
-    with console.status(f"exporting {run} to {out}"):
-        s = run_safely(lambda: export_run(run, out, fmt, min_content_score, keep_mean_std))
+    with console.status(f"exporting {run} to {out}"), off_terminal("export", unit="clips") as beat:
+        s = run_safely(
+            lambda: export_run(run, out, fmt, min_content_score, keep_mean_std, progress=beat.update if beat else None)
+        )
     console.print(
         f"wrote {s.originals} original + {s.stylized} stylized clips to {s.out} ({s.format}); "
         f"splits {_counts(s.splits)}; "

@@ -27,6 +27,7 @@ from rich.console import Console
 from rich.markup import escape
 
 from motionaug.schemas.errors import MotionDataError, first_error
+from motionaug.workflows.progress_log import Heartbeat
 
 EXIT_FAILURE = 1
 EXIT_USAGE = 2
@@ -175,6 +176,25 @@ def usage_errors() -> Iterator[None]:
     """Like ``user_errors`` for a bad config or argument: one line, exit code 2."""
     with _errors_exit(EXIT_USAGE):
         yield
+
+
+LOG_EVERY_ENV = "MOTIONAUG_LOG_EVERY"  # seconds between progress lines off a terminal (default 10)
+
+
+def log_interval(given: float | None = None) -> float:
+    """Seconds between progress lines: ``given``, else MOTIONAUG_LOG_EVERY, else 10."""
+    return given or float(os.environ.get(LOG_EVERY_ENV) or 10.0)
+
+
+@contextmanager
+def off_terminal(command: str, every: float | None = None, unit: str = "steps") -> Iterator[Heartbeat | None]:
+    """Progress lines every ``every`` seconds (default: MOTIONAUG_LOG_EVERY, else 10) when stdout is not a terminal
+    (a job log, ``nohup``, CI), where rich spinners and bars show nothing until the end; None on a terminal."""
+    if console.is_terminal:
+        yield None
+        return
+    with Heartbeat(command, log_interval(every), unit) as beat:
+        yield beat
 
 
 def run_safely(fn: Callable[[], T]) -> T:

@@ -15,7 +15,7 @@ from typing import Annotated, Literal
 import typer
 from rich.table import Table
 
-from motionaug.workflows.cli_app import console, run_safely
+from motionaug.workflows.cli_app import console, off_terminal, run_safely
 
 expansion_app = typer.Typer(
     help="Does an expansion help a text-to-motion model? Split, merge, score.", no_args_is_help=True
@@ -36,7 +36,8 @@ def split_command(
     from motionaug.augment.synth import STYLE_WORDS
 
     styles = [s for s in missing.split(",") if s]
-    s = run_safely(lambda: split_by_style(corpus, out, styles, neutral, expand, seed, words=STYLE_WORDS))
+    with off_terminal("expansion split"):
+        s = run_safely(lambda: split_by_style(corpus, out, styles, neutral, expand, seed, words=STYLE_WORDS))
     console.print(
         f"A: {s.base_splits} clips (styles {s.present}); held out {s.held_out}; {len(s.expand_ids)} clips to expand; "
         f"examples {[e['path'] for e in s.examples.values()]}; {s.dropped_for_captions} dropped for naming a "
@@ -56,7 +57,8 @@ def truth_command(
     """Write C, the upper bound: A plus the true stylized clips, in its train split."""
     from motionaug.augment.eval.expansion import BASE_DIR, merge_clips, true_stylized
 
-    sizes = run_safely(lambda: merge_clips(split / BASE_DIR, true_stylized(split, mode), out))
+    with off_terminal("expansion truth"):
+        sizes = run_safely(lambda: merge_clips(split / BASE_DIR, true_stylized(split, mode), out))
     console.print(f"C: {sizes} clips per split, in {out}")
 
 
@@ -69,7 +71,8 @@ def merge_command(
     """Write B, the expanded corpus: A plus every stylized clip of the run, in its train split."""
     from motionaug.augment.eval.expansion import BASE_DIR, merge_clips, run_clips
 
-    sizes = run_safely(lambda: merge_clips(split / BASE_DIR, run_clips(run), out))
+    with off_terminal("expansion merge"):
+        sizes = run_safely(lambda: merge_clips(split / BASE_DIR, run_clips(run), out))
     console.print(f"B: {sizes} clips per split, in {out}")
 
 
@@ -98,7 +101,8 @@ def score_command(
             for name, path in named.items()
         }
 
-    scores = run_safely(score_all)
+    with off_terminal("expansion score"):
+        scores = run_safely(score_all)
     for group in ("style_prompted", "neutral", "present", "all"):
         if not any(group in figures for figures in scores.values()):
             continue

@@ -13,7 +13,8 @@ import typer
 from rich.table import Table
 
 from motionaug.schemas.errors import MotionDataError
-from motionaug.workflows.cli_app import app, console, note_output, run_safely, usage_errors
+from motionaug.workflows.cli_app import app, console, note_output, off_terminal, run_safely, usage_errors
+from motionaug.workflows.cli_view import ByOption, IdsOption, print_viewer, split_ids
 
 
 @app.command("preview")
@@ -24,13 +25,28 @@ def preview_command(
     out: Annotated[Path | None, typer.Option(help="Output file: .gif, .mp4 (or .png with --grid).")] = None,
     grid: Annotated[int | None, typer.Option(min=1, help="Contact sheet of N random transfers across styles.")] = None,
     seed: Annotated[int, typer.Option(help="Seed for --grid's choice of clips.")] = 0,
+    html: Annotated[
+        bool, typer.Option("--html", help="The 3D viewer (a folder: viewer.html + viewer/) of --ids, --worst or all.")
+    ] = False,
+    ids: IdsOption = None,
+    worst: Annotated[
+        int | None, typer.Option(min=1, help="With --html: the N worst clips of a run by --by (limb agreement).")
+    ] = None,
+    by: ByOption = "limb_agreement",
 ) -> None:
-    """Animate a clip beside its stylized version (a run), or one clip of a corpus; --grid: a PNG contact sheet."""
+    """Animate a clip beside its stylized version (a run), or one clip of a corpus; --grid: a PNG contact sheet;
+    --html: the 3D viewer of a chosen subset (default folder: previews/viewer in the run, ./previews/viewer-NAME)."""
     from motionaug.augment.eval.evaluation import preview_corpus, preview_grid, preview_transfer
     from motionaug.augment.outputs.run_dir import RunDir
 
+    is_run = RunDir(path).is_run()
+    if html:
+        with usage_errors():
+            _check_html_args(path, grid, worst, is_run)
+        _preview_html(path, out, split_ids(ids) or ([clip] if clip else None), worst, by, is_run)
+        return
     with usage_errors():
-        _check_preview_args(path, clip, style, grid, RunDir(path).is_run())
+        _check_preview_args(path, clip, style, grid, is_run)
     note_output(out or path)
     with console.status("rendering preview"):
         if grid is not None:
@@ -40,6 +56,30 @@ def preview_command(
         else:
             written = run_safely(lambda: preview_corpus(path, clip, out))
     console.print(f"wrote {written}")
+
+
+def _preview_html(
+    path: Path, out: Path | None, ids: list[str] | None, worst: int | None, by: str, is_run: bool
+) -> None:
+    from motionaug.augment.render.viewer import write_corpus_viewer, write_run_viewer
+
+    target = out or (path / "previews" / "viewer" if is_run else Path("previews") / f"viewer-{path.name}")
+    note_output(target)
+    with console.status("writing the viewer"):
+        if is_run:
+            summary = run_safely(lambda: write_run_viewer(path, target, ids, worst, by=by))
+        else:
+            summary = run_safely(lambda: write_corpus_viewer(path, target, ids))
+    print_viewer(summary)
+
+
+def _check_html_args(path: Path, grid: int | None, worst: int | None, is_run: bool) -> None:
+    if not path.exists():
+        raise MotionDataError(str(path), "not found")
+    if grid is not None:
+        raise MotionDataError("--html/--grid", "give one: --html writes the 3D viewer, --grid a PNG sheet")
+    if worst is not None and not is_run:
+        raise MotionDataError("--worst", f"{path} is a corpus, not a run: it has no content scores")
 
 
 def _check_preview_args(path: Path, clip: str | None, style: str | None, grid: int | None, is_run: bool) -> None:
@@ -71,12 +111,17 @@ def evaluate_command(
     """Score every stylized clip; write report.md, report.html and scores.parquet into the run folder."""
     from motionaug.augment.eval.evaluation import evaluate_run, write_scores
     from motionaug.augment.eval.report import SUMMARY_COLUMNS, format_value, write_report
+    from motionaug.augment.render.viewer import viewer_beside_report
 
     note_output(run)
-    with console.status(f"evaluating {run}"):
-        evaluation = run_safely(lambda: evaluate_run(run, reference, base_models))
+    with console.status(f"evaluating {run}"), off_terminal("evaluate", unit="clips") as beat:
+        evaluation = run_safely(
+            lambda: evaluate_run(run, reference, base_models, progress=beat.update if beat else None)
+        )
         scores = run_safely(lambda: write_scores(evaluation))
-        md, page = run_safely(lambda: write_report(evaluation))
+    with console.status(f"writing the 3D viewer of {run}"), off_terminal("evaluate viewer"):
+        viewer, why_not = run_safely(lambda: viewer_beside_report(run))
+    md, page = run_safely(lambda: write_report(evaluation))
     shown = [
         c
         for c in SUMMARY_COLUMNS
@@ -93,3 +138,7 @@ def evaluate_command(
     for leak in evaluation.leaks:
         console.print(f"[red]not held out:[/red] {leak}", highlight=False)
     console.print(f"wrote {md}, {page} and {scores}")
+    if viewer is not None:
+        print_viewer(viewer)
+    else:
+        console.print(f"[yellow]no 3D viewer:[/yellow] {why_not}", highlight=False, soft_wrap=True)

@@ -16,6 +16,7 @@ from typing import Any
 from motionaug.augment.corpus.humanml3d import read_labels
 from motionaug.augment.io import atomic_write_text
 from motionaug.augment.outputs.export import ExportSummary, export_run
+from motionaug.augment.render.viewer import ViewerSummary, write_run_viewer
 from motionaug.augment.synth import STYLE_WORDS, generate_corpus
 from motionaug.augment.text.tokens import parse_caption_line
 from motionaug.schemas.errors import MotionDataError
@@ -43,6 +44,7 @@ class DemoResult:
     corpus: Path
     run: RunSummary
     export: ExportSummary
+    viewer: ViewerSummary
 
 
 def ensure_corpus(root: Path, clips: int, seed: int = DEMO_SEED) -> Path:
@@ -112,9 +114,11 @@ def run_demo(
     method: str = "onthefly",
     size: str = "small",
 ) -> DemoResult:
-    """Corpus -> base models -> run -> HumanML3D export under ``out``; every step skipped when already complete."""
+    """Corpus -> base models -> run -> HumanML3D export and the run's 3D viewer under ``out``; every step but the
+    viewer (rewritten, seconds) skipped when already complete."""
     corpus = ensure_corpus(out / "corpus", clips)
     config = demo_config(corpus, out / "run", base_models or out / "base_models", method, size)
     summary = execute_run(config, progress=progress)
     exported = export_run(summary.run_dir, out / "expanded")
-    return DemoResult(corpus=corpus, run=summary, export=exported)
+    viewer = write_run_viewer(summary.run_dir)
+    return DemoResult(corpus=corpus, run=summary, export=exported, viewer=viewer)

@@ -23,8 +23,10 @@ from ray.train.torch import TorchConfig, TorchTrainer, get_device
 
 from motionaug.augment.training.pretrain import CHECKPOINTS, Parallel, PretrainConfig, pretrain
 from motionaug.schemas.errors import MotionDataError
+from motionaug.workflows.progress_log import Heartbeat
 
 LOG = logging.getLogger(__name__)
+
 MAX_FAILURES = 2
 RAY_TRAIN_SNAPSHOT = "checkpoint_manager_snapshot.json"  # Ray Train's run state in its experiment folder
 
@@ -35,22 +37,19 @@ def _report(metrics: dict[str, float], folder: Path | None) -> None:
     ray.train.report(metrics, checkpoint=checkpoint, checkpoint_upload_mode=CheckpointUploadMode.NO_UPLOAD)
 
 
-def _print_progress(stage: str, step: int, total: int, values: dict[str, float]) -> None:
-    """Rank 0's progress as log lines (Ray Train sends them to the driver's console and the job log)."""
-    if step == total or step % 50 == 0:
-        loss = next((f" loss {v:.4f}" for k, v in values.items() if "loss" in k), "")
-        LOG.info("pretrain %s %d/%d%s", stage, step, total, loss)
-
-
 def _worker(setup: dict[str, Any]) -> None:
     """One Ray Train worker: the whole pretraining with its rank, on its device (NCCL needs the GPU Ray Train
     gave this worker, gloo the CPU); rank 0 also trains the evaluators and saves."""
     context = ray.train.get_context()
     rank, world = context.get_world_rank(), context.get_world_size()
     config = PretrainConfig.model_validate(setup["config"]).model_copy(update={"threads": setup["threads"]})
-    progress = _print_progress if rank == 0 else None
     parallel = Parallel(rank, world, _report)
-    pretrain(setup["corpus"], setup["out"], config, progress, parallel=parallel, device=get_device())
+    if rank != 0:
+        pretrain(setup["corpus"], setup["out"], config, None, parallel=parallel, device=get_device())
+        return
+    # rank 0's progress as a line every log_every seconds (Ray sends worker output to the driver and the job log)
+    with Heartbeat("pretrain (rank 0)", every=setup.get("log_every", 10.0), write=LOG.info) as beat:
+        pretrain(setup["corpus"], setup["out"], config, beat.update, parallel=parallel, device=get_device())
 
 
 def _cpus_per_worker(workers: int) -> int:
@@ -84,6 +83,7 @@ def train_on_ray(
     config: PretrainConfig,
     workers: int,
     gpus_per_worker: float = 0.0,
+    log_every: float = 10.0,
 ) -> None:
     """Pretrain into ``out_dir`` on ``workers`` Ray Train workers of the Ray this process is connected to."""
     out = Path(out_dir).resolve()
@@ -101,6 +101,7 @@ def train_on_ray(
             "out": str(out),
             "config": config.model_dump(),
             "threads": config.threads or cpus,
+            "log_every": log_every,
         },
         torch_config=TorchConfig(backend="nccl" if gpus_per_worker > 0 else "gloo"),
         scaling_config=ScalingConfig(num_workers=workers, use_gpu=gpus_per_worker > 0, resources_per_worker=resources),
@@ -121,6 +122,7 @@ def pretrain_on_ray(
     workers: int,
     gpus_per_worker: float = 0.0,
     address: str | None = None,
+    log_every: float = 10.0,
 ) -> Path:
     """``ensure_base_models`` with the training on Ray Train; joins ``address`` or starts an embedded Ray.
 
@@ -140,7 +142,7 @@ def pretrain_on_ray(
             corpus_dir,
             out_dir,
             config=config,
-            runner=lambda corpus, out, cfg: train_on_ray(corpus, out, cfg, workers, gpus_per_worker),
+            runner=lambda corpus, out, cfg: train_on_ray(corpus, out, cfg, workers, gpus_per_worker, log_every),
         )
     finally:
         if started:

@@ -8,6 +8,7 @@ one line at most every ``every`` seconds (and when it completes), with counts, r
 from __future__ import annotations
 
 import sys
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -73,5 +74,99 @@ class LineProgress:
         return f"{head}, {rate:.2f}/s, {eta}"
 
 
+def _count(done: int, total: int) -> str:
+    """``3/10``, or ``3`` when the total is not known (0)."""
+    return f"{done}/{total}" if total else str(done)
+
+
 def _print(line: str) -> None:
     print(line, file=sys.stdout, flush=True)
+
+
+class Heartbeat:
+    """A command's progress off a terminal: one line every ``every`` seconds from a background thread, whether or
+    not the work reported since, so a job log never goes quiet; a line too when a stage starts and when it ends.
+    A command that ends within its first ``every`` seconds prints nothing (a quick error stays one line).
+
+    The work calls ``update(stage, done, total, metrics)`` (``augment.training.pretrain``'s progress hook has this
+    signature): ``pretrain prior 120/4000 steps (3%), loss 0.1234, 2.31 steps/s, ETA 28m00s``.
+    """
+
+    def __init__(
+        self,
+        command: str,
+        every: float = 10.0,
+        unit: str = "steps",
+        write: Callable[[str], None] | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.command = command
+        self.every = every
+        self.unit = unit
+        self.write = write or _print
+        self.clock = clock
+        self.started = clock()
+        self.stage: str | None = None
+        self.stage_started = self.started
+        self.done = self.first = self.total = 0
+        self.metrics: dict[str, float] = {}
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._spoke = False
+
+    def _say(self, line: str) -> None:
+        """Write ``line`` once the command has run ``every`` seconds; before that, stay quiet."""
+        if not self._spoke and self.clock() - self.started < self.every:
+            return
+        self._spoke = True
+        self.write(line)
+
+    def update(self, stage: str, done: int, total: int, metrics: dict[str, float] | None = None) -> None:
+        with self._lock:
+            if stage != self.stage:
+                if self.stage is not None and self.done < self.total:
+                    self._say(self.line())  # the last state of a stage left early
+                self.stage, self.stage_started, self.first = stage, self.clock(), done
+                self._say(f"{self.command} {stage} {_count(done, total)} {self.unit}: started")
+            self.done, self.total, self.metrics = done, total, dict(metrics or {})
+            if total and done >= total:
+                self._say(self.line())
+
+    def line(self) -> str:
+        """The current state: stage, counts, the latest loss, rate and time left at that rate."""
+        now = self.clock()
+        if self.stage is None:
+            return f"{self.command}: working, {format_seconds(now - self.started)} elapsed"
+        elapsed = max(now - self.stage_started, 1e-9)
+        head = f"{self.command} {self.stage} {_count(self.done, self.total)} {self.unit}"
+        if self.total:
+            head += f" ({100 * self.done // self.total}%)"
+        loss = next((f", {k} {v:.4f}" for k, v in self.metrics.items() if "loss" in k), "")
+        if self.total and self.done >= self.total:
+            return f"{head}{loss}: done in {format_seconds(elapsed)}"
+        rate = (self.done - self.first) / elapsed
+        eta = f"ETA {format_seconds((self.total - self.done) / rate)}" if rate > 0 and self.total else "ETA -"
+        return f"{head}{loss}, {rate:.2f} {self.unit}/s, {eta}, {format_seconds(now - self.started)} elapsed"
+
+    def _beat(self) -> None:
+        while not self._stop.wait(self.every):
+            with self._lock:
+                if self.stage is not None and self.total and self.done >= self.total:  # between stages
+                    elapsed = format_seconds(self.clock() - self.started)
+                    self._say(f"{self.command}: working (after {self.stage}), {elapsed} elapsed")
+                else:
+                    self._say(self.line())
+
+    def __enter__(self) -> Heartbeat:
+        self._thread = threading.Thread(target=self._beat, name=f"{self.command}-progress", daemon=True)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        if self._spoke:
+            outcome = "failed" if exc[0] else "finished"
+            self.write(f"{self.command}: {outcome} after {format_seconds(self.clock() - self.started)}")

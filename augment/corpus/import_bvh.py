@@ -18,7 +18,7 @@ import re
 import shutil
 import time
 from collections import defaultdict
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -78,6 +78,11 @@ _UNSAFE = re.compile(r"[^A-Za-z0-9_.-]+")
 _TAKE_NUMBER = re.compile(r"(\d+)$")
 
 CUT_RULE = "takes longer than {n} frames are cut into ceil(T/{n}) consecutive equal pieces (+-1 frame), never padded"
+AUTO_FRACTION = 0.15
+AUTO_SPLIT_RULE = (
+    "per (content, style) pair in take-number order: the last round(15% of its takes) (at least 1) test, as many "
+    "before them val, the rest train (at least one stays in train)"
+)
 SPLIT_RULE = (
     "per (content, style) pair in take-number order: the last {test} takes test, the {val} before them val, "
     "the rest train (fewer when a pair has under {need} takes; at least one stays in train)"
@@ -98,6 +103,7 @@ class ImportSummary(BaseModel):
     missing_pairs: dict[str, list[str]] = Field(default_factory=dict, description="'content/style' absent per split.")
     licence: str | None = None
     seconds: float = 0.0
+    notes: list[str] = Field(default_factory=list, description="What a default could not do, and why.")
 
 
 class CorpusMeta(BaseModel):
@@ -136,11 +142,50 @@ def bvh_files(src: Path) -> list[Path]:
     return files
 
 
-def clip_labels(path: Path, content: str | None = None, style: str | None = None) -> tuple[str, str | None]:
-    """(content, style): the options when ``content`` is given, else the Bandai JSON/name; ``style`` overrides.
+class LabelPattern:
+    """Labels read from file names: ``{style}_{take}_{part}.bvh`` (fields ``style``, ``content``, ``take``; any other
+    ``{name}`` matches a part of the name and is ignored). A field matches one or more characters other than ``/``;
+    the pattern matches the whole file name (the stem when the pattern has no ``.bvh``)."""
+
+    FIELDS = ("style", "content", "take")
+
+    def __init__(self, pattern: str) -> None:
+        self.pattern = pattern
+        parts = re.split(r"\{([A-Za-z_][A-Za-z0-9_]*)\}", pattern)
+        names = parts[1::2]
+        if not names:
+            raise MotionDataError(
+                "--labels-from", f"{pattern!r} has no {{field}}; e.g. '{{style}}_{{take}}_{{part}}.bvh'"
+            )
+        if len(set(names)) != len(names):
+            raise MotionDataError("--labels-from", f"{pattern!r} names a field twice")
+        regex = "".join(re.escape(text) if i % 2 == 0 else f"(?P<{text}>[^/]+?)" for i, text in enumerate(parts))
+        self.regex = re.compile(regex)
+        self.names = set(names)
+
+    def match(self, path: Path) -> dict[str, str]:
+        """The fields of ``path``'s name; a name that does not fit is an error naming the pattern."""
+        name = path.name if self.pattern.lower().endswith(".bvh") else path.stem
+        found = self.regex.fullmatch(name)
+        if not found:
+            raise MotionDataError(str(path), f"name does not match --labels-from {self.pattern!r}")
+        return {k: v for k, v in found.groupdict().items() if k in self.FIELDS}
+
+
+def clip_labels(
+    path: Path, content: str | None = None, style: str | None = None, labels: LabelPattern | None = None
+) -> tuple[str, str | None]:
+    """(content, style): from ``labels`` (the file name) when given, the options when ``content`` is given, else the
+    Bandai JSON/name; a ``style`` option overrides.
 
     ``style`` alone relabels the style of Bandai files; other files need ``content`` (the reject says so).
     """
+    if labels is not None:
+        fields = labels.match(path)
+        c = fields.get("content") or content
+        if not c:
+            raise MotionDataError(str(path), f"--labels-from {labels.pattern!r} has no {{content}}; pass --content")
+        return c, style or fields.get("style")
     if content:
         return content, style
     try:
@@ -187,6 +232,7 @@ def iter_bvh_clips(
     joint_map: JointMap | str | os.PathLike[str] | None = None,
     fps: float = 20.0,
     captions: int = 3,
+    labels: LabelPattern | None = None,
 ) -> Iterator[MotionClip]:
     """Clips of every ``*.bvh`` under ``src`` (or ``src`` itself), in sorted order, with ``captions`` captions each.
 
@@ -200,7 +246,7 @@ def iter_bvh_clips(
         try:
             if clip_id in seen:
                 raise MotionDataError(str(path), f"duplicate clip id {clip_id!r}; rename one of the files")
-            c, s = clip_labels(path, content, style)
+            c, s = clip_labels(path, content, style, labels)
             joints = t2m_joints(path, joint_map, fps)
             if len(joints) < MIN_FRAMES + 1:
                 raise MotionDataError(str(path), f"{len(joints)} frames at {fps:g} fps; need at least {MIN_FRAMES + 1}")
@@ -210,7 +256,8 @@ def iter_bvh_clips(
             continue
         seen.add(clip_id)
         texts = label_captions(c, s, n=captions, seed=clip_id)
-        yield MotionClip(clip_id, motion, texts, fps=fps, content=c, style=s, source=str(path))
+        meta = {"take": labels.match(path)["take"]} if labels is not None and "take" in labels.names else {}
+        yield MotionClip(clip_id, motion, texts, fps=fps, content=c, style=s, source=str(path), meta=meta)
 
 
 # ---- cutting ----------------------------------------------------------------------------------------------------
@@ -268,41 +315,69 @@ def take_number(take_id: str) -> int | None:
     return int(match.group(1)) if match else None
 
 
-def split_takes(takes: Iterable[tuple[str, tuple[str, str | None]]], val_takes: int, test_takes: int) -> dict[str, str]:
+def auto_takes(n_takes: int) -> int:
+    """Val (and test) takes of a pair with ``n_takes`` takes when none are given: ``AUTO_FRACTION`` of them, at
+    least one; on Bandai-2 this is the paper's protocol (docs/bandai.md)."""
+    return max(1, round(AUTO_FRACTION * n_takes))
+
+
+def split_takes(
+    takes: Iterable[tuple[str, tuple[str, str | None]]], val_takes: int | None, test_takes: int | None
+) -> dict[str, str]:
     """Split of each take id, given (take id, (content, style)) pairs; see ``SPLIT_RULE``.
 
     Per pair, takes are ordered by take number (then id); the last ``test_takes`` go to test and the ``val_takes``
-    before them to val. A pair with fewer than ``val_takes + test_takes + 1`` takes keeps at least one take in
-    train and shares the rest between test and val (test first).
+    before them to val (None: ``auto_takes`` of the pair's takes). A pair with fewer than ``val_takes + test_takes
+    + 1`` takes keeps at least one take in train and shares the rest between test and val (test first).
     """
-    if val_takes < 0 or test_takes < 0:
+    if (val_takes or 0) < 0 or (test_takes or 0) < 0:
         raise ValueError(f"val_takes and test_takes must be >= 0, got {val_takes} and {test_takes}")
     by_pair: dict[tuple[str, str | None], list[str]] = defaultdict(list)
     for take_id, pair in takes:
-        by_pair[pair].append(take_id)
+        if take_id not in by_pair[pair]:
+            by_pair[pair].append(take_id)
     split_of: dict[str, str] = {}
     for ids in by_pair.values():
         ids.sort(key=lambda t: (take_number(t) is None, take_number(t) or 0, t))
+        test_takes_here = auto_takes(len(ids)) if test_takes is None else test_takes
+        val_takes_here = auto_takes(len(ids)) if val_takes is None else val_takes
         spare = len(ids) - 1
-        n_test = min(test_takes, math.ceil(spare / 2) if val_takes else spare)
-        n_val = min(val_takes, spare - n_test)
+        n_test = min(test_takes_here, math.ceil(spare / 2) if val_takes_here else spare)
+        n_val = min(val_takes_here, spare - n_test)
         n_train = len(ids) - n_test - n_val
         for i, take_id in enumerate(ids):
             split_of[take_id] = "train" if i < n_train else "val" if i < n_train + n_val else "test"
     return split_of
 
 
-def _planned_splits(
-    files: list[Path], content: str | None, style: str | None, val_takes: int, test_takes: int
-) -> dict[str, str]:
-    """Splits from names and labels only, so a take's split never depends on whether another take imports."""
-    takes = []
+def _take_ids(
+    files: list[Path], content: str | None, style: str | None, labels: LabelPattern | None
+) -> dict[str, tuple[str, tuple[str, str | None]]]:
+    """clip id -> (take id, (content, style)) from names and labels only; the take is the file unless ``labels``
+    reads a ``{take}`` (then the files of one take share it)."""
+    takes = {}
     for path in files:
         try:
-            takes.append((clip_id_from_path(path), clip_labels(path, content, style)))
+            pair = clip_labels(path, content, style, labels)
+            take = labels.match(path)["take"] if labels is not None and "take" in labels.names else None
         except MotionDataError:
             continue  # rejected with its reason when the clip is read
-    return split_takes(takes, val_takes, test_takes)
+        clip_id = clip_id_from_path(path)
+        takes[clip_id] = (f"{pair[0]}/{pair[1]}/{take}" if take is not None else clip_id, pair)
+    return takes
+
+
+def carry_take_ids(takes: dict[str, tuple[str, tuple[str, str | None]]]) -> bool:
+    """Every file names a numbered take (Bandai's ``..._017``, or a ``{take}`` field ending in a number)."""
+    return bool(takes) and all(take_number(take) is not None for take, _ in takes.values())
+
+
+def _planned_splits(
+    takes: dict[str, tuple[str, tuple[str, str | None]]], val_takes: int | None, test_takes: int | None
+) -> dict[str, str]:
+    """Splits from names and labels only, so a take's split never depends on whether another take imports."""
+    split_of_take = split_takes(takes.values(), val_takes, test_takes)
+    return {clip_id: split_of_take[take] for clip_id, (take, _) in takes.items()}
 
 
 # ---- licence ----------------------------------------------------------------------------------------------------
@@ -375,12 +450,14 @@ def import_bvh(
     joint_map: str | os.PathLike[str] | None = None,
     *,
     max_frames: int | None = None,
-    val_takes: int = 0,
-    test_takes: int = 0,
-    mean_std: bool = False,
+    val_takes: int | None = 0,
+    test_takes: int | None = 0,
+    mean_std: bool | None = False,
     licence: str | None = None,
     captions: int = 3,
     mode: ImportMode = "new",
+    labels_from: str | None = None,
+    progress: Callable[[str, int, int, dict[str, float]], None] | None = None,
 ) -> ImportSummary:
     """Write every usable BVH under ``src`` to ``out``; rejects go to ``out/rejects.jsonl``.
 
@@ -390,7 +467,11 @@ def import_bvh(
     ``max_frames`` cuts long takes (``cut_bounds``); ``val_takes``/``test_takes`` > 0 split takes per (content,
     style) pair (``split_takes``) into ``train.txt``/``val.txt``/``test.txt``/``train_val.txt`` beside ``all.txt``
     (HumanML3D) or the ``split`` column (Parquet); ``mean_std`` writes ``Mean.npy``/``Std.npy`` from the train
-    split (every clip without splits). ``licence`` names the data's licence; Bandai file names imply theirs.
+    split (every clip without splits; None: when the clips allow, else a note in ``notes``).
+    ``val_takes``/``test_takes`` None: ``auto_takes`` per pair when the files carry take ids (``carry_take_ids``),
+    else no splits. ``labels_from`` reads labels from file names (``LabelPattern``). ``licence`` names the data's
+    licence; Bandai file names imply theirs.
+    ``progress(stage, files done, files, {})`` hears of each file read.
     """
     started = time.perf_counter()
     src, out = Path(src), Path(out)
@@ -398,16 +479,17 @@ def import_bvh(
         raise MotionDataError(str(src), "does not exist")
     if max_frames is not None and max_frames < MIN_FRAMES:
         raise MotionDataError("--max-frames", f"must be at least {MIN_FRAMES}, got {max_frames}")
-    if captions < 1 or val_takes < 0 or test_takes < 0:
+    if captions < 1 or (val_takes or 0) < 0 or (test_takes or 0) < 0:
         raise MotionDataError("options", "captions must be >= 1 and val/test takes >= 0")
     files = bvh_files(src)
     the_map = load_joint_map(joint_map)
+    labels = LabelPattern(labels_from) if labels_from else None
     target = ImportTarget.open(out, fmt, mode)
     try:
         options = ImportOptions(
-            fmt, content, style, the_map, max_frames, val_takes, test_takes, mean_std, licence, captions
+            fmt, content, style, the_map, max_frames, val_takes, test_takes, mean_std, licence, captions, labels
         )
-        summary = _import_into(target, src, files, options)
+        summary = _import_into(target, src, files, options, progress)
         if summary.clips == 0:
             first = f"; first: {summary.rejects[0]}" if summary.rejects else ""
             reason = (
@@ -430,18 +512,27 @@ class ImportOptions:
     style: str | None
     joint_map: JointMap | None
     max_frames: int | None
-    val_takes: int
-    test_takes: int
-    mean_std: bool
+    val_takes: int | None
+    test_takes: int | None
+    mean_std: bool | None
     licence: str | None
     captions: int
+    labels: LabelPattern | None = None
 
 
-def _import_into(target: ImportTarget, src: Path, files: list[Path], o: ImportOptions) -> ImportSummary:
+def _import_into(
+    target: ImportTarget,
+    src: Path,
+    files: list[Path],
+    o: ImportOptions,
+    progress: Callable[[str, int, int, dict[str, float]], None] | None = None,
+) -> ImportSummary:
     """The import proper, into ``target.stage``; files the import rewrites are merged with the target's."""
     stage = target.stage
-    splitting = o.val_takes > 0 or o.test_takes > 0
-    split_of = _planned_splits(files, o.content, o.style, o.val_takes, o.test_takes) if splitting else {}
+    takes = _take_ids(files, o.content, o.style, o.labels)
+    auto = o.val_takes is None or o.test_takes is None
+    splitting = carry_take_ids(takes) if auto else (o.val_takes or 0) > 0 or (o.test_takes or 0) > 0
+    split_of = _planned_splits(takes, o.val_takes, o.test_takes) if splitting else {}
     bandai = any(is_bandai_name(path) for path in files)
     licence = o.licence or (BANDAI_LICENCE if bandai else None)
 
@@ -450,8 +541,14 @@ def _import_into(target: ImportTarget, src: Path, files: list[Path], o: ImportOp
     split_ids: dict[str, list[str]] = {name: [] for name in SPLITS}
     pairs: dict[str, set[str]] = {name: set() for name in (*SPLITS, "all")}
 
+    read = 0
+
     def counted() -> Iterator[MotionClip]:
-        for take in iter_bvh_clips(src, rejects, o.content, o.style, o.joint_map, captions=o.captions):
+        nonlocal read
+        for take in iter_bvh_clips(src, rejects, o.content, o.style, o.joint_map, captions=o.captions, labels=o.labels):
+            read += 1
+            if progress is not None:
+                progress("read", min(read + len(rejects), len(files)), len(files), {})
             split = split_of.get(take.id)
             if split:
                 take.meta["split"] = split
@@ -505,8 +602,18 @@ def _import_into(target: ImportTarget, src: Path, files: list[Path], o: ImportOp
         for name in (*SPLITS, "train_val"):
             target.merge_lines(f"{name}.txt")
     summary.splits = {name: len(members) for name, members in split_ids.items()} if splitting else {}
-    if o.mean_std or (target.appending and (stage / "Mean.npy").is_file()):  # never leave stale statistics
-        compute_mean_std(_train_motions(stage, o.fmt)).save(stage)
+    wrote_stats = False
+    # never leave stale statistics; with no clip there are none (the caller says why)
+    if ids and (o.mean_std is not False or (target.appending and (stage / "Mean.npy").is_file())):
+        try:
+            compute_mean_std(_train_motions(stage, o.fmt)).save(stage)
+            wrote_stats = True
+        except MotionDataError as err:
+            if o.mean_std:  # asked for: an error; by default: a note
+                raise
+            (stage / "Mean.npy").unlink(missing_ok=True)
+            (stage / "Std.npy").unlink(missing_ok=True)
+            summary.notes.append(f"no Mean/Std written: {err.reason} (too few or too similar train clips)")
     if licence:
         _write_licence(stage, licence, bandai, _licence_file(src, files))
     meta = CorpusMeta(
@@ -516,10 +623,8 @@ def _import_into(target: ImportTarget, src: Path, files: list[Path], o: ImportOp
         attribution=BANDAI_ATTRIBUTION if bandai else None,
         commercial_use=False if bandai else None,
         cut_rule=CUT_RULE.format(n=o.max_frames) if o.max_frames else None,
-        split_rule=SPLIT_RULE.format(val=o.val_takes, test=o.test_takes, need=o.val_takes + o.test_takes + 1)
-        if splitting
-        else None,
-        mean_std=("train split" if splitting else "all clips") if o.mean_std else None,
+        split_rule=_split_rule(o) if splitting else None,
+        mean_std=("train split" if splitting else "all clips") if wrote_stats else None,
         captions_per_clip=o.captions,
         takes=summary.takes,
         clips=summary.clips,
@@ -528,6 +633,12 @@ def _import_into(target: ImportTarget, src: Path, files: list[Path], o: ImportOp
     )
     atomic_write_text(stage / CORPUS_META_FILE, _merged_meta(target, meta).model_dump_json(indent=2) + "\n")
     return summary
+
+
+def _split_rule(o: ImportOptions) -> str:
+    if o.val_takes is None or o.test_takes is None:
+        return AUTO_SPLIT_RULE
+    return SPLIT_RULE.format(val=o.val_takes, test=o.test_takes, need=o.val_takes + o.test_takes + 1)
 
 
 def _old_rejects(target: ImportTarget) -> list[Reject]:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 import warnings
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -350,11 +350,13 @@ def evaluate_run(
     reference: str | Path | None = None,
     base_models: str | Path | None = None,
     seed: int = 0,
+    progress: Callable[[str, int, int, dict[str, float]], None] | None = None,
 ) -> Evaluation:
     """Score every stylized clip of a complete run and summarise per style (see the module docstring).
 
     ``reference`` is the corpus whose labelled clips FMD compares against (default: the run's corpus);
-    ``base_models`` holds the classifiers (default: the run's base models).
+    ``base_models`` holds the classifiers (default: the run's base models); ``progress(stage, done, total, {})``
+    hears of each scored batch.
     """
     run_dir = Path(run_dir)
     manifest = RunDir(run_dir).manifest()
@@ -370,7 +372,7 @@ def evaluate_run(
         raise MotionDataError(str(run_dir), "run has no stylized clips to evaluate")
     sources = _read_sources(corpus, source_ids, notes)
     rows = iter_shard_rows(run_dir, columns=_ROW_COLUMNS, files=shards)
-    records, out_feats = _score_rows(rows, sources, classifiers)
+    records, out_feats = _score_rows(rows, sources, classifiers, progress=progress, total=manifest.rows)
     styles = [s["name"] for s in config.get("styles", [])] or sorted({r["style"] for r in records})
     real_feats = _real_features(reference, styles, classifiers, notes)
     style_of = np.array([r["style"] for r in records])
@@ -451,7 +453,12 @@ def _classifiers(
 
 
 def _score_rows(
-    rows: Iterable[dict], sources: dict[str, _Source], classifiers: Classifiers | None, batch: int = 64
+    rows: Iterable[dict],
+    sources: dict[str, _Source],
+    classifiers: Classifiers | None,
+    batch: int = 64,
+    progress: Callable[[str, int, int, dict[str, float]], None] | None = None,
+    total: int = 0,
 ) -> tuple[list[dict], np.ndarray]:
     """Per-clip records sorted by output_id, and the style-classifier features (N, F) in the same order.
 
@@ -465,8 +472,12 @@ def _score_rows(
         if len(pending) == batch:
             _score_batch(pending, sources, classifiers, records, feats)
             pending = []
+            if progress is not None:
+                progress("score", len(records), max(total, len(records)), {})
     if pending:
         _score_batch(pending, sources, classifiers, records, feats)
+    if progress is not None:
+        progress("score", len(records), len(records), {})
     order = sorted(range(len(records)), key=lambda i: records[i]["output_id"])
     all_feats = np.concatenate(feats) if feats else np.zeros((len(records), 0))
     return [records[i] for i in order], all_feats[order]

@@ -26,6 +26,7 @@ from motionaug.augment.io import atomic_path, atomic_write_text
 
 REPORT_MD = "report.md"
 REPORT_HTML = "report.html"
+VIEWER_HTML = "viewer.html"  # augment.render.viewer writes it beside the report
 PLOTS_DIR = "report_plots"
 N_WORST = 5
 
@@ -238,6 +239,7 @@ def _md_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]
 def render_markdown(evaluation: Evaluation, plots: dict[str, Plot]) -> str:
     lines = [f"# Evaluation of run {evaluation.run_id}", ""]
     lines += [f"- **{k}**: {v}" for k, v in _info_lines(evaluation)] + [""]
+    lines += [f"[The 3D viewer]({VIEWER_HTML}): every stylized clip beside its content clip, worst first.", ""]
     lines += ["## Summary", ""]
     lines += _md_table(["style", *[h for _, h, _ in SUMMARY_COLUMNS]], summary_rows(evaluation))
     lines += [reference_note(), ""]
@@ -304,7 +306,12 @@ def render_html(evaluation: Evaluation, plots: dict[str, Plot]) -> str:
         f"<style>{_CSS}</style></head><body>",
         f"<h1>Evaluation of run {e(evaluation.run_id)}</h1><ul>",
     ]
-    parts += [f"<li><b>{e(k)}</b>: {e(v)}</li>" for k, v in _info_lines(evaluation)] + ["</ul><h2>Summary</h2>"]
+    parts += [f"<li><b>{e(k)}</b>: {e(v)}</li>" for k, v in _info_lines(evaluation)] + ["</ul>"]
+    parts.append(
+        f"<p><a href='{VIEWER_HTML}'>Open the 3D viewer</a>: every stylized clip beside its content clip, worst limb"
+        f" agreement first (written by <code>motionaug evaluate</code> and <code>motionaug view</code>).</p>"
+    )
+    parts.append("<h2>Summary</h2>")
     rows = [[e(c) for c in row] for row in summary_rows(evaluation)]
     classes = [""] * len(evaluation.styles) + ["all", "paper"]
     parts += [

@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 import shutil
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -64,6 +64,8 @@ class _Collector:
         self.evaluated = evaluated  # output_id -> content score from scores.parquet (``motionaug evaluate``)
         self.summary = summary
         self.splits: dict[str, list[str]] = {"train": [], "val": [], "test": [], ADDED_SPLIT: []}
+        self.progress: Callable[[str, int, int, dict[str, float]], None] | None = None
+        self.rows = 0  # stylized rows the run holds (the manifest's count)
 
     def clips(self) -> Iterator[MotionClip]:
         yield from self._originals()
@@ -78,10 +80,14 @@ class _Collector:
                 self.splits[split].append(clip.id)
             clip.meta = {k: v for k, v in clip.meta.items() if k != "split"} | ({"split": split} if split else {})
             self.summary.originals += 1
+            if self.progress is not None:
+                self.progress("originals", self.summary.originals, 0, {})
             yield clip
 
     def _stylized(self) -> Iterator[MotionClip]:
-        for row in iter_shard_rows(self.run_dir, files=self.shards):
+        for seen, row in enumerate(iter_shard_rows(self.run_dir, files=self.shards), 1):
+            if self.progress is not None:
+                self.progress("stylized", seen, max(self.rows, seen), {})
             if row["split"] != "train":
                 self.summary.held_out += 1
                 continue
@@ -129,8 +135,12 @@ def export_run(
     min_content_score: float | None = None,
     keep_mean_std: bool = False,
     score_name: str = "content",
+    progress: Callable[[str, int, int, dict[str, float]], None] | None = None,
 ) -> ExportSummary:
-    """Write the original corpus + the run's stylized train clips to ``out``; returns what went where."""
+    """Write the original corpus + the run's stylized train clips to ``out``; returns what went where.
+
+    ``progress(stage, done, total, {})`` hears of each clip read (``originals``: total 0, unknown; ``stylized``).
+    """
     run_dir, out = Path(run_dir), Path(out)
     if fmt not in ("humanml3d", "parquet"):
         raise MotionDataError("--format", f"unknown export format {fmt!r}; use humanml3d or parquet")
@@ -145,6 +155,7 @@ def export_run(
     _check_scores(run_dir, shards, min_content_score, score_name, evaluated)
     summary = ExportSummary(out=out, format=fmt)
     collector = _Collector(run_dir, run_id, corpus, min_content_score, score_name, summary, shards, evaluated)
+    collector.progress, collector.rows = progress, manifest.rows
     tmp = out.with_name(f".{out.name}.{uuid.uuid4().hex[:12]}.tmp")
     try:
         if fmt == "humanml3d":
