@@ -69,6 +69,12 @@ FAST = [
         "run-into-foreign-folder", ("run", "good.yaml", "--out", "mine"), 1, "is not empty and is not a motionaug run"
     ),
     Case("export-unfinished", ("export", "mine", "--out", "x"), 1, "run is not complete"),
+    Case(
+        "drop-styles-into-foreign-folder",
+        ("corpus", "drop-styles", "corpus", "--style", "proud", "--out", "mine"),
+        1,
+        "folder is not empty; a filtered corpus is written into a new folder",
+    ),
     Case("inspect-not-a-corpus", ("corpus", "inspect", "mine"), 1, "not a corpus"),
     Case(
         "oversized-npy-header",

@@ -194,3 +194,16 @@ def test_a_leaking_run_is_refused_before_it_starts(corpus: Path, tmp_path: Path)
         check_held_out(leaky_example)
     on_all = config.model_copy(update={"corpus": config.corpus.model_copy(update={"split": "all"})})
     assert any("train split" in r for r in held_out_leaks(on_all))
+
+
+def test_drop_styles_command_writes_the_fold_corpus(corpus: Path, tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from motionaug.workflows.cli import app
+
+    result = CliRunner().invoke(
+        app, ["corpus", "drop-styles", str(corpus), "--style", "elderly", "--out", str(tmp_path / "f")]
+    )
+    assert result.exit_code == 0, result.output
+    assert "without the styles elderly, old" in " ".join(result.output.split())
+    assert {c.style for c in Corpus(tmp_path / "f")} == {c.style for c in Corpus(corpus)} - {"old"}

@@ -72,6 +72,24 @@ def corpus_synth(
     )
 
 
+@corpus_app.command("drop-styles")
+def corpus_drop_styles(
+    corpus: Annotated[Path, typer.Argument(help="A HumanML3D folder with style labels.")],
+    styles: Annotated[
+        list[str], typer.Option("--style", help="A style to remove, with its counterparts (repeatable).")
+    ],
+    out: Annotated[Path, typer.Option(help="Output folder (new or empty).")],
+) -> None:
+    """Copy a corpus without some styles and their counterparts in other corpora, for training a model that has
+    never seen them (splits kept, Mean/Std of the remaining train split)."""
+    from motionaug.augment.corpus.style_sets import with_counterparts, write_without_styles
+
+    note_output(out)
+    with console.status(f"writing {corpus} without {', '.join(styles)}"):
+        folder = run_safely(lambda: write_without_styles(corpus, out, styles))
+    console.print(f"wrote {folder} without the styles {', '.join(sorted(with_counterparts(styles)))}")
+
+
 @corpus_app.command("inspect")
 def corpus_inspect(path: Annotated[Path, typer.Argument(help="A HumanML3D folder or a Parquet corpus.")]) -> None:
     """Count clips, frames, hours, captions, labels and rejects of a corpus."""
