@@ -98,7 +98,7 @@ def setup(args: argparse.Namespace) -> None:
         log(f"draws written to {draws_path(args.kind)}")
     draws = read_draws(args.kind)
     judges_dir = args.work / "judges"
-    if not (judges_dir / "judges.json").is_file():
+    if not args.draws_only and not (judges_dir / "judges.json").is_file():
         train = [c for c in view if take_of(c.id) not in draws.takes()]
         held_out = list(Corpus(args.corpus, split="test"))
         log(f"fitting the judges on {len(train)} train clips ({len(draws.takes())} example takes left out)")
@@ -295,6 +295,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--judge-epochs", type=int, default=40)
+    parser.add_argument("--draws-only", action="store_true", help="setup: fix the example draws, fit no judges yet")
     args = parser.parse_args(argv)
     {"setup": setup, "run": run, "gather": gather}[args.command](args)
 
