@@ -24,6 +24,9 @@ def preview_command(
     out: Annotated[Path | None, typer.Option(help="Output file: .gif, .mp4 (or .png with --grid).")] = None,
     grid: Annotated[int | None, typer.Option(min=1, help="Contact sheet of N random transfers across styles.")] = None,
     seed: Annotated[int, typer.Option(help="Seed for --grid's choice of clips.")] = 0,
+    max_frames: Annotated[
+        int, typer.Option(min=1, max=20_000, help="Animate at most this many frames (a long clip is cut short).")
+    ] = 600,
 ) -> None:
     """Animate a clip beside its stylized version (a run), or one clip of a corpus; --grid: a PNG contact sheet."""
     from motionaug.augment.eval.evaluation import preview_corpus, preview_grid, preview_transfer
@@ -36,9 +39,9 @@ def preview_command(
         if grid is not None:
             written = run_safely(lambda: preview_grid(path, grid, out, seed=seed))
         elif RunDir(path).is_run():
-            written = run_safely(lambda: preview_transfer(path, clip, style, out))
+            written = run_safely(lambda: preview_transfer(path, clip, style, out, max_frames=max_frames))
         else:
-            written = run_safely(lambda: preview_corpus(path, clip, out))
+            written = run_safely(lambda: preview_corpus(path, clip, out, max_frames=max_frames))
     console.print(f"wrote {written}")
 
 

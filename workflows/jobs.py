@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.errors import MotionConfigError, MotionDataError
 from motionaug.schemas.run_config import RunConfig
 
 if TYPE_CHECKING:
@@ -62,7 +62,12 @@ def dashboard_url(address: str) -> str:
     """``HEAD:8265`` or ``http://HEAD:8265/`` -> ``http://HEAD:8265`` (the Jobs API speaks HTTP)."""
     address = address.strip().rstrip("/")
     if not address:
-        raise MotionDataError("--address", "empty; give the dashboard URL, e.g. http://HEAD:8265")
+        raise MotionConfigError("--address", "empty; give the dashboard URL, e.g. http://HEAD:8265")
+    scheme = address.split("://", 1)[0].lower() if "://" in address else "http"
+    if scheme not in ("http", "https"):
+        hint = "a Ray Client address" if scheme == "ray" else f"a {scheme}:// address"
+        reason = f"is {hint}; the Jobs API needs the cluster's dashboard URL, e.g. http://HEAD:8265"
+        raise MotionConfigError(f"--address {address}", reason)
     return address if "://" in address else f"http://{address}"
 
 
@@ -88,7 +93,12 @@ def connect(address: str) -> JobSubmissionClient:
 
     url = dashboard_url(address)
     with _cluster_errors(url):
-        return JobSubmissionClient(url, headers=auth_headers())
+        try:
+            return JobSubmissionClient(url, headers=auth_headers())
+        except RuntimeError as err:  # a server that answers but is not a Ray dashboard (its version check fails)
+            first = (str(err).splitlines() or [""])[0][:200]
+            reason = f"not a Ray dashboard ({first}); give the cluster's dashboard URL, e.g. http://HEAD:8265"
+            raise MotionDataError(url, reason) from None
 
 
 @contextmanager
