@@ -91,14 +91,14 @@ def load_npy(path: Path, ndim: int, width: int | None) -> np.ndarray:
             shape, fortran, dtype = _read_npy_header(handle, source)
             if len(shape) != ndim:
                 raise MotionDataError(source, f"shape {shape}, expected {ndim} dimensions")
-            if ndim == 2 and shape[0] > MAX_CLIP_FRAMES:
-                reason = f"{shape[0]} frames, over the ceiling of {MAX_CLIP_FRAMES} a clip may have; cut it into clips"
-                raise MotionDataError(source, reason)
             if width is not None and shape[-1] != width:
                 raise MotionDataError(source, f"feature width {shape[-1]}, expected {width}")
             if dtype.kind != "f":
                 raise MotionDataError(source, f"dtype {dtype}, expected floating point")
             _check_data_size(handle, shape, dtype, source)
+            if ndim == 2 and shape[0] > MAX_CLIP_FRAMES:
+                reason = f"{shape[0]} frames, over the ceiling of {MAX_CLIP_FRAMES} a clip may have; cut it into clips"
+                raise MotionDataError(source, reason)
             flat = np.empty(math.prod(shape), dtype=dtype)
             got = handle.readinto(flat.view(np.uint8))
     except OSError as err:
