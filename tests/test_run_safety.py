@@ -352,3 +352,4 @@ def test_deploy_manifests_keep_the_dashboard_off_public_interfaces() -> None:
     assert cluster["headGroupSpec"]["serviceType"] == job["headGroupSpec"]["serviceType"] == "ClusterIP"
     local = (deploy / "local-cluster.sh").read_text(encoding="utf-8")
     assert "--node-ip-address 127.0.0.1" in local and "--dashboard-host 127.0.0.1" in local
+    assert "ray_start_loopback.py" in local and (deploy / "ray_start_loopback.py").is_file()

@@ -140,12 +140,16 @@ def error_line(err: BaseException) -> str | None:
     return None
 
 
-MAX_LINE = 400
+MAX_LINE = 600
 
 
 def _bounded(line: str) -> str:
-    """A line of at most ``MAX_LINE`` characters: an error naming 10,000 joints stays one readable line."""
-    return line if len(line) <= MAX_LINE else f"{line[: MAX_LINE - 30]}... ({len(line)} characters)"
+    """A line of at most ``MAX_LINE`` characters: an error naming 10,000 joints stays one readable line. Its start
+    (the thing) and its end (the fix, where there is one) are kept; the middle is cut."""
+    if len(line) <= MAX_LINE:
+        return line
+    head, tail = MAX_LINE * 3 // 5, MAX_LINE * 2 // 5 - 5
+    return f"{line[:head]} ... {line[-tail:]}"
 
 
 def report_error(err: BaseException, code: int) -> int:
