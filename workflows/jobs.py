@@ -68,7 +68,17 @@ def dashboard_url(address: str) -> str:
         hint = "a Ray Client address" if scheme == "ray" else f"a {scheme}:// address"
         reason = f"is {hint}; the Jobs API needs the cluster's dashboard URL, e.g. http://HEAD:8265"
         raise MotionConfigError(f"--address {address}", reason)
-    return address if "://" in address else f"http://{address}"
+    url = address if "://" in address else f"http://{address}"
+    from urllib.parse import urlsplit
+
+    try:
+        parts = urlsplit(url)
+        port = parts.port
+    except ValueError as err:
+        raise MotionConfigError(f"--address {address}", f"not a URL ({err}); e.g. http://HEAD:8265") from None
+    if not parts.hostname or (port is not None and not 0 < port < 65536):
+        raise MotionConfigError(f"--address {address}", "not a URL with a host; e.g. http://HEAD:8265")
+    return url
 
 
 def auth_headers() -> dict[str, str]:
@@ -111,8 +121,10 @@ def _cluster_errors(url: str) -> Iterator[None]:
     except AuthenticationError as err:
         first = str(err).splitlines()[0]
         raise MotionDataError(url, f"token refused ({first}); see docs/scale-out.md") from None
-    except ConnectionError:
-        raise MotionDataError(url, "cannot reach the Ray dashboard (is the cluster up and the port right?)") from None
+    except (ConnectionError, OSError) as err:  # requests' errors are OSErrors; ConnectionError: refused, reset
+        detail = "" if isinstance(err, ConnectionError) else f" ({type(err).__name__})"
+        reason = f"cannot reach the Ray dashboard{detail} (is the cluster up and the port right?)"
+        raise MotionDataError(url, reason) from None
 
 
 def _job_missing(err: RuntimeError) -> bool:

@@ -138,17 +138,22 @@ def probe_address(address: str, timeout_s: float) -> None:
     """Fail in ``timeout_s`` with one line when nothing listens at a cluster's ``HOST:PORT`` (``ray://`` too);
     ``auto`` and ``local`` are Ray's to resolve."""
     text = address.strip()
-    if text in ("auto", "local") or not text:
+    where = f"--address {address}"
+    if text in ("auto", "local"):
         return
-    hostport = text.split("://", 1)[1] if "://" in text else text
-    hostport = hostport.split("/", 1)[0]
-    host, _, port = hostport.rpartition(":")
-    if not host or not port.isdigit():
-        raise MotionConfigError(f"--address {address}", "not HOST:PORT (the cluster's GCS address, e.g. HEAD:6379)")
+    scheme, _, hostport = text.rpartition("://")
+    if scheme and scheme.lower() != "ray":
+        reason = "is a URL; a run joins a cluster by its GCS address HEAD:6379 (or ray://HEAD:10001)"
+        if scheme.lower() in ("http", "https"):
+            reason += "; the dashboard URL is for `motionaug submit`"
+        raise MotionConfigError(where, reason)
+    host, _, port = hostport.split("/", 1)[0].rpartition(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise MotionConfigError(where, "not HOST:PORT (the cluster's GCS address, e.g. HEAD:6379)")
     try:
         with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s):
             pass
     except OSError as err:
         reason = f"no answer in {timeout_s:g} s" if isinstance(err, TimeoutError) else (err.strerror or str(err))
         reason = f"cannot reach the Ray cluster ({reason.lower()}; is it up and the port right?)"
-        raise MotionDataError(f"--address {address}", reason) from None
+        raise MotionDataError(where, reason) from None
