@@ -22,8 +22,36 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
 
-from fuzz_cases import KINDS, STRATEGIES, build_scene, problems, run_case, serving, snapshot  # noqa: E402
+from fuzz_cases import (  # noqa: E402
+    KINDS,
+    STRATEGIES,
+    Outcome,
+    Scene,
+    build_scene,
+    problems,
+    run_case,
+    serving,
+    snapshot,
+)
 from hypothesis import HealthCheck, given, seed, settings  # noqa: E402
+
+
+def fuzz_kind(scene: Scene, work: Path, kind: str, n: int, seed_value: int) -> list[Outcome]:
+    """``n`` drawn cases of one kind, each run in a fresh folder under ``work`` (removed after)."""
+    outcomes: list[Outcome] = []
+
+    @seed(seed_value)
+    @settings(max_examples=n, deadline=None, database=None, suppress_health_check=list(HealthCheck))
+    @given(case=STRATEGIES[kind])
+    def one(case: tuple[str, bytes, list[str]]) -> None:
+        folder = work / f"{kind}-{len(outcomes)}"
+        try:
+            outcomes.append(run_case(scene, folder, case))
+        finally:
+            shutil.rmtree(folder, ignore_errors=True)
+
+    one()
+    return outcomes
 
 
 def main() -> int:
@@ -41,30 +69,12 @@ def main() -> int:
         before = snapshot(root / "scene")
         with serving(root / "scene") as scene:
             for kind in KINDS:
-                count = [0]
-
-                @settings(
-                    max_examples=args.per_kind,
-                    deadline=None,
-                    database=None,
-                    suppress_health_check=list(HealthCheck),
-                )
-                @given(case=STRATEGIES[kind])
-                def one(case: tuple[str, bytes, list[str]], kind: str = kind, count: list[int] = count) -> None:
-                    nonlocal longest
-                    work = root / "work" / f"{kind}-{count[0]}"
-                    count[0] += 1
-                    try:
-                        outcome = run_case(scene, work, case)
-                    finally:
-                        shutil.rmtree(work, ignore_errors=True)
+                for outcome in fuzz_kind(scene, root / "work", kind, args.per_kind, args.seed):
                     codes[(kind, outcome.code)] += 1
                     longest = max(longest, (outcome.seconds, outcome.args))
                     wrong = problems(outcome)
                     if wrong:
                         found.append((kind, outcome.args, wrong))
-
-                seed(args.seed)(one)()
         changed = sorted(k for k, v in snapshot(root / "scene").items() if before.get(k) != v)
     finally:
         shutil.rmtree(root, ignore_errors=True)

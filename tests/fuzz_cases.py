@@ -37,7 +37,7 @@ KINDS = ("config-field", "override", "config-text", "address", "bvh", "npy")
 
 GOOD = {
     "version": 1,
-    "corpus": {"path": "corpus"},
+    "corpus": {"path": "@CORPUS@"},
     "styles": [
         {
             "name": "proud",
@@ -102,7 +102,10 @@ SCALARS = st.one_of(
     st.sampled_from(WORDS),
     st.text(max_size=12),
 )
-VALUES = st.recursive(
+PLAUSIBLE = st.sampled_from(
+    [1, 2, 3, 4, 8, 0, 0.5, 1.0, 64, "all", "train", "test", "neutral", "proud", "stats", True, None, [], {}, ["walk"]]
+)
+VALUES = PLAUSIBLE | st.recursive(
     SCALARS,
     lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=5), inner, max_size=3),
     max_leaves=6,
@@ -129,7 +132,7 @@ def build_scene(root: Path) -> None:
     from motionaug.augment.synth import generate_corpus
 
     generate_corpus(root / "corpus", 16, seed=3)
-    (root / "good.yaml").write_text(yaml.safe_dump(GOOD), encoding="utf-8")
+    (root / "good.yaml").write_text(yaml.safe_dump(GOOD).replace("'@CORPUS@'", "corpus"), encoding="utf-8")
     (root / "takes").mkdir()
     shutil.copy(TEMPLATE, root / "takes" / "dataset-2_walk_proud_001.bvh")
     (root / "mine").mkdir()
@@ -260,7 +263,7 @@ def address(draw: st.DrawFn) -> tuple[str, bytes, list[str]]:
 @st.composite
 def bvh(draw: st.DrawFn) -> tuple[str, bytes, list[str]]:
     """The template take mangled: cut short, lines dropped or repeated, tokens replaced (``corpus import-bvh``)."""
-    lines = TEMPLATE.read_text(encoding="utf-8").splitlines()[:220]
+    lines = TEMPLATE.read_text(encoding="utf-8").splitlines()
     for _ in range(draw(st.integers(1, 4))):
         at = draw(st.integers(0, len(lines) - 1))
         how = draw(st.sampled_from(["cut", "drop", "repeat", "token"]))
@@ -277,7 +280,8 @@ def bvh(draw: st.DrawFn) -> tuple[str, bytes, list[str]]:
         if not lines:
             break
     text = "\n".join(lines) + "\n"
-    return "dataset-2_walk_proud_002.bvh", text.encode(), ["corpus", "import-bvh", "{file}", "--out", "{out}/c"]
+    source = draw(st.sampled_from(["{file}", "{takes}"]))  # the take alone, or its folder beside a good take
+    return "dataset-2_walk_proud_002.bvh", text.encode(), ["corpus", "import-bvh", source, "--out", "{out}/c"]
 
 
 @st.composite
@@ -337,9 +341,10 @@ def run_case(scene: Scene, work: Path, case: tuple[str, bytes, list[str]]) -> Ou
     elif name.endswith(".bvh"):
         file = work / "takes" / name
         file.parent.mkdir()
+        shutil.copy(TEMPLATE, work / "takes" / "dataset-2_walk_proud_001.bvh")
     if file is not None:
-        file.write_bytes(content)
-    where = {"{file}": str(file), "{closed}": scene.closed, "{not_ray}": scene.not_ray}
+        file.write_bytes(content.replace(b"@CORPUS@", str(scene.root / "corpus").encode()))
+    where = {"{file}": str(file), "{takes}": str(work / "takes"), "{closed}": scene.closed, "{not_ray}": scene.not_ray}
     filled = []
     for arg in args:
         for key, value in where.items():
@@ -366,7 +371,7 @@ def problems(outcome: Outcome) -> list[str]:
     lines = outcome.output.splitlines()
     if "Traceback" in outcome.output:
         found.append("traceback")
-    if any("unexpected" in line for line in lines if line.startswith("error:")):
+    if any(line.startswith("error: unexpected ") for line in lines):  # the line of a bug (docs/errors.md)
         found.append("unexpected")
     if outcome.code not in EXIT_CODES:
         found.append(f"exit code {outcome.code}")

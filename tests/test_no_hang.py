@@ -132,6 +132,14 @@ def test_a_deep_or_huge_bvh_is_a_rejected_file_and_the_good_ones_import(tmp_path
     assert len(list((tmp_path / "c" / "new_joint_vecs").glob("*.npy"))) >= 1
 
 
+def test_a_bad_bvh_on_stdin_is_named_stdin_not_a_temporary_file() -> None:
+    from motionaug.augment.methods.erd.stream_files import read_frames
+
+    with pytest.raises(MotionDataError) as caught:
+        read_frames(io.BytesIO(b"HIERARCHY\nROOT Hips\n{\nOFFSET 0 0\n"), "bvh")
+    assert str(caught.value).startswith("stdin: ") and ".bvh" not in str(caught.value), caught.value
+
+
 def test_an_error_line_is_bounded() -> None:
     line = error_line(MotionDataError("x.bvh", "joints " + "j, " * 30_000))
     assert line is not None and len(line) <= MAX_LINE

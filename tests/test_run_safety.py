@@ -236,6 +236,7 @@ def test_a_corpus_rewritten_in_place_is_a_new_run(tmp_path: Path) -> None:
     first = load_run_config(None, data=config_dict(root, tmp_path / "run"))
     assert first.run_id() == load_run_config(None, data=config_dict(root, tmp_path / "run")).run_id()
     write_resolved_config(first)
+    (tmp_path / "run" / "styles").mkdir()  # the first run made something: a folder of nothing would be taken over
     shutil.rmtree(root)
     generate_corpus(root, 10, seed=0)  # same path, same ids, rewritten
     again = load_run_config(None, data=config_dict(root, tmp_path / "run"))
