@@ -206,7 +206,7 @@ def test_a_folder_whose_run_made_nothing_is_taken_over(corpus: Path, tmp_path: P
     [
         ({"num_cpus": 64}, "config compute.num_cpus: 64 CPUs asked, but this machine has 2"),
         ({"transfer_cpus": 4}, "transfer tasks ask for 4 CPUs each, but the embedded Ray on this machine has 2"),
-        ({"finetune_gpus": 1}, "prepare tasks ask for 1 GPUs each, but the embedded Ray on this machine has none"),
+        ({"finetune_gpus": 1}, "prepare tasks ask for 1 GPU each, but the embedded Ray on this machine has none"),
         ({"num_cpus": None, "transfer_cpus": 3}, "transfer tasks ask for 3 CPUs each, but the embedded Ray"),
     ],
 )

@@ -120,8 +120,13 @@ def check_local_resources(config: RunConfig, trains: bool, machine: dict[str, fl
         if problem is not None:
             setting, amount, kind, most = problem
             has = "none" if most == 0 else f"{most:g}" + (" (compute.num_cpus)" if kind == "CPU" and asked else "")
-            reason = f"{stage} tasks ask for {amount:g} {kind}s each, but the embedded Ray on this machine has {has}"
+            asks = f"{stage} tasks ask for {amount:g} {kind}{plural(amount)} each"
+            reason = f"{asks}, but the embedded Ray on this machine has {has}"
             raise MotionConfigError(f"config {setting}", reason)
+
+
+def plural(amount: float) -> str:
+    return "" if amount == 1 else "s"
 
 
 def unfit(request: Resources, nodes: list[dict[str, float]]) -> tuple[str, float, str, float] | None:

@@ -27,7 +27,7 @@ from motionaug.schemas.run_config import ComputeConfig, RunConfig, resolve_paths
 from motionaug.schemas.shards import Manifest
 from motionaug.workflows.executor import RunProgress, run_pipeline, run_unit
 from motionaug.workflows.pipeline import Resources, Stage, write_resolved_config
-from motionaug.workflows.preflight import preflight, probe_address, unfit
+from motionaug.workflows.preflight import plural, preflight, probe_address, unfit
 
 
 @dataclass
@@ -278,7 +278,8 @@ def unschedulable(stage: str, request: Resources, nodes: list[dict[str, float]],
     setting, amount, kind, most = unfit(request, nodes) or ("compute", 0.0, "?", 0.0)
     has = "none" if most == 0 else f"at most {most:g} per node"
     waited = f"; no node that has them joined in {waited_s:g} s" if waited_s else ""
-    reason = f"{stage} tasks ask for {amount:g} {kind}s each, but the cluster's nodes have {has}{waited}"
+    asks = f"{stage} tasks ask for {amount:g} {kind}{plural(amount)} each"
+    reason = f"{asks}, but the cluster's nodes have {has}{waited}"
     return MotionConfigError(f"config {setting}", reason)
 
 
