@@ -15,7 +15,7 @@ import os
 import sys
 import time
 from collections.abc import Hashable, Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -75,6 +75,12 @@ def loopback_only() -> Iterator[None]:
             os.environ[LOOPBACK_SWITCH] = before
 
 
+def is_loopback(address: str) -> bool:
+    """Whether a cluster address names this machine's loopback (``127.0.0.1:6379``, ``localhost:6379``, ``ray://...``)."""
+    host = address.rpartition("://")[2].split("/", 1)[0].rpartition(":")[0].strip("[]")
+    return host in ("127.0.0.1", "localhost", "::1")
+
+
 def _check_loopback() -> None:
     import ray
 
@@ -127,8 +133,11 @@ def ray_session(compute: ComputeConfig) -> Iterator[Any]:
     (``ray get-auth-token --generate`` before ``ray start --head``) or in ``RAY_AUTH_TOKEN``. The embedded
     cluster binds 127.0.0.1 only (``loopback_only``; docs/ray.md, Security).
     """
-    if compute.address is None and "ray" not in sys.modules:
-        with loopback_only():
+    loopback = compute.address is None or is_loopback(compute.address)
+    if compute.address:
+        client_auth_for_address()  # before Ray is imported: it reads RAY_AUTH_MODE then
+    if loopback and "ray" not in sys.modules:
+        with loopback_only():  # Ray reads the switch when it is first imported
             import ray
     import ray
 
@@ -138,9 +147,9 @@ def ray_session(compute: ComputeConfig) -> Iterator[Any]:
     ray_environment()
     options: dict[str, Any] = {"include_dashboard": compute.include_dashboard, "log_to_driver": True}
     if compute.address:
-        client_auth_for_address()
         try:
-            context = ray.init(address=compute.address, **options)
+            with loopback_only() if loopback else nullcontext():  # 127.0.0.1 stays 127.0.0.1 (deploy/local-cluster.sh)
+                context = ray.init(address=compute.address, **options)
         except (ConnectionError, RuntimeError, TimeoutError) as err:
             first = (str(err).splitlines() or [type(err).__name__])[0]
             raise MotionDataError(
