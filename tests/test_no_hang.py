@@ -93,11 +93,18 @@ def test_clips_over_the_runs_limit_are_rejects_with_their_length(corpus: Path, t
 
 
 def test_run_ids_of_configs_without_a_clip_limit_are_unchanged(corpus: Path, tmp_path: Path) -> None:
+    """The run id as it was computed before ``corpus.max_clip_frames`` existed: earlier runs still resume."""
+    import hashlib
+
     plain = config(corpus, tmp_path / "a")
-    assert plain.run_id() != config(corpus, tmp_path / "a", corpus__max_clip_frames=100).run_id()
-    assert "max_clip_frames" not in json.dumps(plain.model_dump(mode="json", include={"corpus"})["corpus"]) or (
-        plain.corpus.max_clip_frames is None
-    )
+    keep = plain.model_dump(mode="json", include={"version", "corpus", "styles", "method", "fan_out", "seed"})
+    del keep["corpus"]["max_clip_frames"]
+    keep["batching"] = [plain.compute.unit_size, plain.compute.batch_size]
+    keep["corpus"]["path"] = str(Path(keep["corpus"]["path"]).resolve())
+    keep["corpus"]["content"] = plain.corpus_fingerprint()
+    before = "run-" + hashlib.sha256(json.dumps(keep, sort_keys=True).encode()).hexdigest()[:12]
+    assert plain.run_id() == before
+    assert config(corpus, tmp_path / "a", corpus__max_clip_frames=100).run_id() != before
 
 
 def _deep_bvh(depth: int) -> str:
@@ -240,3 +247,10 @@ def test_tasks_no_node_can_hold_stop_the_run_naming_the_setting(ray_cluster, cor
         assert str(caught.value).startswith(f"config {setting}: transfer tasks ask for "), caught.value
         assert time.monotonic() - started < 60
         assert not list((tmp_path / setting).rglob("*.parquet"))
+
+
+@pytest.mark.parametrize("item", ["prior_steps=[", "prior_steps", "=3"])
+def test_a_bad_pretrain_override_is_one_usage_line(item: str, tmp_path: Path) -> None:
+    result = CliRunner().invoke(app, ["pretrain", "--corpus", str(tmp_path), "--out", str(tmp_path / "pt"), "--set", item])
+    assert result.exit_code == 2 and result.output.startswith("error: --set: override "), result.output
+    assert "unexpected" not in result.output and not (tmp_path / "pt").exists()

@@ -242,7 +242,10 @@ def pretrain(
     from motionaug.schemas.run_config import apply_overrides
 
     with usage_errors():
-        options = apply_overrides({}, overrides or [])
+        try:
+            options = apply_overrides({}, overrides or [])
+        except ValueError as err:
+            raise MotionDataError("--set", str(err)) from None
     mdm = {"from_mdm": from_mdm, "clip_weights": clip_weights, "mdm_stats": mdm_stats}
     options |= {name: str(path.resolve()) for name, path in mdm.items() if path is not None}
     config = run_safely(lambda: PretrainConfig.for_size(size, seed=seed, **options))
