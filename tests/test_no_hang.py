@@ -251,6 +251,7 @@ def test_tasks_no_node_can_hold_stop_the_run_naming_the_setting(ray_cluster, cor
 
 @pytest.mark.parametrize("item", ["prior_steps=[", "prior_steps", "=3"])
 def test_a_bad_pretrain_override_is_one_usage_line(item: str, tmp_path: Path) -> None:
-    result = CliRunner().invoke(app, ["pretrain", "--corpus", str(tmp_path), "--out", str(tmp_path / "pt"), "--set", item])
+    args = ["pretrain", "--corpus", str(tmp_path), "--out", str(tmp_path / "pt"), "--set", item]
+    result = CliRunner().invoke(app, args)
     assert result.exit_code == 2 and result.output.startswith("error: --set: override "), result.output
     assert "unexpected" not in result.output and not (tmp_path / "pt").exists()
