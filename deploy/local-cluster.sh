@@ -10,6 +10,7 @@
 # process group but keep the session). Settings (environment):
 #   CLUSTER_DIR     state, logs and Ray's temp dir      (default: ./.local-cluster)
 #   RAY_BIN         the ray executable                  (default: ray on PATH)
+#   RAY_PYTHON      the Python that runs it              (default: the python beside RAY_BIN)
 #   GCS_PORT        head GCS port                        (default: 6390)
 #   DASHBOARD_PORT  dashboard / Jobs API port            (default: 8275)
 #   AGENT_PORT      first dashboard-agent port; node i uses AGENT_PORT+2i and +2i+1 (default: 52400)
@@ -27,6 +28,11 @@ CPUS_PER_NODE=${CPUS_PER_NODE:-1}
 PIDS="$CLUSTER_DIR/pids"
 export RAY_USAGE_STATS_ENABLED=0
 export RAY_AUTH_MODE=${RAY_AUTH_MODE:-token}
+# Ray 2.60 swaps a loopback --node-ip-address for the machine's routable address, and a node's GCS, raylet, object
+# manager and agents then listen there; ray_start_loopback.py runs `ray start` keeping 127.0.0.1, so every port the
+# cluster opens is on 127.0.0.1 (tests/test_cluster.py reads the listening sockets back).
+RAY_PYTHON=${RAY_PYTHON:-$(dirname "$(command -v "$RAY_BIN")")/python}
+LOOPBACK_START="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)/ray_start_loopback.py"
 
 die() { echo "local-cluster: $*" >&2; exit 1; }
 
@@ -40,7 +46,7 @@ ensure_token() {
 # start_node NAME ARGS...: `ray start --block ARGS` in a new session; its pid (= session id) is recorded.
 start_node() {
   local name=$1; shift
-  setsid "$RAY_BIN" start --block --disable-usage-stats --node-ip-address 127.0.0.1 \
+  setsid "$RAY_PYTHON" "$LOOPBACK_START" start --block --disable-usage-stats --node-ip-address 127.0.0.1 \
     --num-cpus "$CPUS_PER_NODE" "$@" >"$CLUSTER_DIR/$name.log" 2>&1 </dev/null &
   echo "$! $name" >>"$PIDS"
 }

@@ -21,6 +21,10 @@ class MotionDataError(ValueError):
         return (type(self), (self.source, self.reason))
 
 
+class MotionConfigError(MotionDataError):
+    """A ``MotionDataError`` about the run config or the command line (exit 2), even when a Ray task meets it."""
+
+
 def first_error(err: ValidationError, whole: str) -> tuple[str, str]:
     """(dotted field path, message) of a pydantic error's first problem; ``whole`` when it is about the whole."""
     first = err.errors()[0]

@@ -93,9 +93,20 @@ class CorpusFilters(_Strict):
         return self
 
 
+DEFAULT_CLIP_FRAMES = 200
+"""HumanML3D's convention: clips under 10 s at 20 fps (its reference loader keeps 40 <= T < 200)."""
+CLIP_FRAMES_CEILING = 20_000  # ``augment.corpus.humanml3d.MAX_CLIP_FRAMES``: no clip is read past it
+
+
 class CorpusConfig(_Strict):
     path: Path
     format: Literal["auto", "humanml3d", "parquet"] = "auto"
+    max_clip_frames: int | None = Field(
+        default=None,
+        ge=1,
+        le=CLIP_FRAMES_CEILING,
+        description=f"Longer clips are rejects (with their length as the reason); default {DEFAULT_CLIP_FRAMES}.",
+    )
     split: str | None = Field(default=None, description="HumanML3D split file to read (default: all.txt).")
     filters: CorpusFilters = Field(default_factory=CorpusFilters)
     pool_split: str | None = Field(
@@ -182,6 +193,15 @@ class ComputeConfig(_Strict):
     unit_size: int = Field(default=256, ge=1)
     max_retries: int = Field(default=3, ge=0)
     include_dashboard: bool = False
+    connect_timeout_s: float = Field(
+        default=30.0, gt=0, description="Seconds to reach a cluster given by address before giving up."
+    )
+    unschedulable_timeout_s: float = Field(
+        default=60.0,
+        ge=0,
+        description="Seconds a stage may wait for a node with the resources its tasks ask for (an autoscaler may "
+        "add one); then the run stops naming the setting. An embedded Ray has no autoscaler: it stops at once.",
+    )
 
 
 class RunConfig(_Strict):
@@ -194,6 +214,9 @@ class RunConfig(_Strict):
     compute: ComputeConfig = Field(default_factory=ComputeConfig)
     output: Path = Path("runs/run")
     seed: int = 0
+    allow_empty: bool = Field(
+        default=False, description="Accept a run that selects or writes 0 clips (else that is an error)."
+    )
     _fingerprint: tuple[str, str] | None = PrivateAttr(default=None)  # (resolved corpus path, its fingerprint)
 
     @field_validator("styles")
@@ -212,6 +235,10 @@ class RunConfig(_Strict):
             raise ValueError(f"fan_out.per_clip {k} > number of styles {len(self.styles)}")
         return self
 
+    def clip_frames(self) -> int:
+        """The most frames a clip of this run may have (``corpus.max_clip_frames`` or the convention)."""
+        return self.corpus.max_clip_frames or DEFAULT_CLIP_FRAMES
+
     def corpus_fingerprint(self) -> str:
         """``corpus_stat_fingerprint`` of the corpus, computed once per config object (it travels with it to tasks)."""
         path = str(Path(self.corpus.path).resolve())
@@ -224,6 +251,8 @@ class RunConfig(_Strict):
         keep = self.model_dump(mode="json", include={"version", "corpus", "styles", "method", "fan_out", "seed"})
         keep["batching"] = [self.compute.unit_size, self.compute.batch_size]  # seeds are drawn per unit and batch
         keep["corpus"]["path"] = str(Path(keep["corpus"]["path"]).resolve())
+        if keep["corpus"]["max_clip_frames"] is None:
+            del keep["corpus"]["max_clip_frames"]  # the default: run ids of configs that never set it stay as they were
         keep["corpus"]["content"] = self.corpus_fingerprint()
         digest = hashlib.sha256(json.dumps(keep, sort_keys=True).encode()).hexdigest()
         return f"run-{digest[:12]}"
@@ -237,7 +266,13 @@ def parse_override(item: str) -> tuple[list[str], Any]:
     parts = [p for p in key.strip().split(".") if p]
     if not parts:
         raise ValueError(f"override {item!r} has an empty key")
-    return parts, yaml.safe_load(raw) if raw.strip() else ""
+    if not raw.strip():
+        return parts, ""
+    try:
+        return parts, yaml.safe_load(raw)
+    except yaml.YAMLError as err:
+        problem = getattr(err, "problem", None) or str(err).splitlines()[0]
+        raise ValueError(f"override {item!r}: the value is not valid YAML ({problem})") from None
 
 
 def apply_overrides(data: dict[str, Any], overrides: list[str]) -> dict[str, Any]:

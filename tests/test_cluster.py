@@ -210,6 +210,30 @@ def test_a_job_uses_both_nodes(cluster: str, tmp_path: Path) -> None:
     assert "NODES 2" in logs and "CWD alive" in logs, logs[-2000:]
 
 
+def cluster_listening(cluster_dir: Path) -> set[tuple[str, int]]:
+    """(address, port) of every listening TCP socket of the processes local-cluster.sh started (their sessions)."""
+    import psutil
+
+    sessions = {int(line.split()[0]) for line in (cluster_dir / "pids").read_text().splitlines() if line.strip()}
+    pids = set()
+    for proc in psutil.process_iter(["pid"]):
+        try:
+            if os.getsid(proc.info["pid"]) in sessions:
+                pids.add(proc.info["pid"])
+        except (psutil.Error, ProcessLookupError):
+            continue
+    sockets = psutil.net_connections("inet")
+    return {(c.laddr.ip, c.laddr.port) for c in sockets if c.status == "LISTEN" and c.pid in pids}
+
+
+def test_the_local_cluster_listens_on_loopback_only(cluster: str, cluster_dir: Path) -> None:
+    """Every port of every node (GCS, raylets, object managers, agents, dashboard) is on 127.0.0.1."""
+    listening = cluster_listening(cluster_dir)
+    ports = {port for _, port in listening}
+    assert int(cluster.rsplit(":", 1)[1]) in ports and len(listening) >= 8, listening
+    assert {ip for ip, _ in listening} <= {"127.0.0.1", "::ffff:127.0.0.1", "::1"}, listening
+
+
 def busy_transfer_workers(cluster_dir: Path) -> list[int]:
     """Pids of this cluster's Ray workers running a transfer task now, read from the processes themselves.
 

@@ -10,14 +10,17 @@ raised inside a task). Read-only and full disks are small tmpfs mounts (the mach
 from __future__ import annotations
 
 import hashlib
+import http.server
 import io
 import json
 import os
 import re
 import subprocess
 import sys
+import threading
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -54,6 +57,28 @@ FAST = [
     Case("bad-method-param", ("run", "param.yaml"), 2, "method.params.strength"),
     Case("missing-corpus", ("run", "nocorpus.yaml"), 2, "corpus.path"),
     Case("missing-example-file", ("run", "nofile.yaml"), 2, "nope.npy not found"),
+    Case("example-not-in-corpus", ("run", "noexample.yaml", "--out", "run-b"), 2, "'999999' is not in the corpus"),
+    Case("short-example", ("run", "short.yaml", "--out", "run-b"), 2, "too short: 5 frames < 20"),
+    Case("caption-separator", ("run", "hash.yaml", "--out", "run-b"), 2, "holds '#'"),
+    Case("missing-split-file", ("run", "good.yaml", "--set", "corpus.split=nope"), 2, "corpus.split: "),
+    Case("config-is-a-folder", ("run", "corpus"), 2, "corpus: is a folder; give the run config file"),
+    Case("bad-override-value", ("run", "good.yaml", "--set", "compute.num_cpus=["), 2, "is not valid YAML"),
+    Case("cpus-over-machine", ("run", "good.yaml", "--set", "compute.num_cpus=4096"), 2, "4096 CPUs asked"),
+    Case(
+        "task-over-machine",
+        ("run", "good.yaml", "--set", "compute.transfer_cpus=4"),
+        2,
+        "compute.transfer_cpus: transfer tasks ask for 4 CPUs each, but the embedded Ray on this machine has 2",
+    ),
+    Case("gpus-over-machine", ("run", "good.yaml", "--set", "compute.finetune_gpus=64"), 2, "ask for 64 GPUs each"),
+    Case("out-is-a-file", ("run", "good.yaml", "--out", "good.yaml"), 2, "good.yaml is a file; a run needs a folder"),
+    Case(
+        "stream-input-format",
+        ("stream", "--style", "old", "--model", "corpus", "--input", "good.yaml"),
+        2,
+        "--input: reads .bvh or .npy motion, not 'yaml'",
+    ),
+    Case("submit-client-address", ("submit", "good.yaml", "--address", "ray://127.0.0.1:1"), 2, "Ray Client address"),
     Case("preview-args", ("preview", "corpus", "--clip", "000001", "--style", "proud"), 2, "is a corpus, not a run"),
     Case("preview-html-worst-of-corpus", ("preview", "corpus", "--html", "--worst", "3"), 2, "has no content scores"),
     Case("view-not-a-run", ("view", "corpus"), 2, "not a run folder; for a corpus use"),
@@ -90,6 +115,8 @@ FAST = [
         "cannot reach the Ray dashboard",
     ),
     Case("unreachable-status", ("status", "run-x", "--address", "http://127.0.0.1:1"), 1, "cannot reach"),
+    Case("run-unreachable-cluster", ("run", "good.yaml", "--address", "127.0.0.1:1"), 1, "cannot reach the Ray"),
+    Case("not-a-dashboard", ("logs", "x", "--address", "{not_ray}"), 1, "not a Ray dashboard"),
     # disks
     Case("read-only-output", ("corpus", "synth", "--out", "ro/c", "--clips", "40"), 1, "ro/c: read-only file system"),
     Case("full-disk", ("corpus", "synth", "--out", "full/c", "--clips", "40"), 1, "no space left on device"),
@@ -111,7 +138,7 @@ AFTER_RUN = [
     Case("evaluate-damaged-shard", ("evaluate", "run"), 1, "checksum mismatch; run `motionaug run`"),
     Case("export-over-foreign-folder", ("export", "run", "--out", "mine"), 1, "holds no earlier export"),
 ]
-IN_TASK = Case("example-not-in-corpus", ("run", "noexample.yaml", "--out", "run-b"), 1, "'999999' is not in the corpus")
+IN_TASK = Case("empty-selection", ("run", "nothing.yaml", "--out", "run-b"), 1, "select 0 of the 20 readable clips")
 BAD_CLIPS = {
     "huge_header": "header says 1000000000 frames but file has 192 bytes",
     "nan_clip": "NaN/Inf values from frame 3",
@@ -191,10 +218,17 @@ def _build_scene(root: Path) -> None:
     _write_yaml(root / "method.yaml", _config(corpus, method={"name": "nope"}))
     _write_yaml(root / "param.yaml", _config(corpus, method={"name": "stats", "params": {"strength": 3}}))
     _write_yaml(root / "nocorpus.yaml", _config(root / "no-such-corpus"))
-    for name, source in (("nofile", "nope.npy"), ("noexample", "999999")):
+    for name, source in (("nofile", "nope.npy"), ("noexample", "999999"), ("short", "short.npy")):
         data = _config(corpus)
         data["styles"][0]["examples"][0]["source"] = source
         _write_yaml(root / f"{name}.yaml", data)
+    np.save(root / "short.npy", np.zeros((5, 263), dtype=np.float32))
+    hashed = _config(corpus)
+    hashed["styles"][0]["words"]["phrases"] = ["in a #1 way"]
+    _write_yaml(root / "hash.yaml", hashed)
+    nothing = _config(corpus)
+    nothing["corpus"]["filters"] = {"contents": ["fly"]}
+    _write_yaml(root / "nothing.yaml", nothing)
     (root / "mine").mkdir()
     (root / "mine" / "notes.txt").write_text("not a run, not a corpus\n", encoding="utf-8")
     bvh = TEMPLATE.read_text(encoding="utf-8")
@@ -218,7 +252,9 @@ def scene(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
             pytest.fail("cannot mount a tmpfs for the read-only and full-disk cases (run as root)")
         pytest.skip("cannot mount a tmpfs (not root?): the disk cases need one")
     try:
-        yield root
+        with not_a_dashboard() as url:
+            NOT_RAY[:] = [url]
+            yield root
     finally:
         for path in mounted:
             subprocess.run(["umount", str(path)], capture_output=True)
@@ -229,9 +265,31 @@ def scene(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
 
 def _motionaug(root: Path, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:
     env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0", "COLUMNS": "200", "NO_COLOR": "1"}
+    args = tuple(arg.format(not_ray=NOT_RAY[0]) if arg == "{not_ray}" else arg for arg in args)
     return subprocess.run(
         [str(MOTIONAUG), *args], cwd=root, env=env, capture_output=True, text=True, timeout=timeout, check=False
     )
+
+
+NOT_RAY: list[str] = []  # the URL of an HTTP server that is not a Ray dashboard (every path: 404), set by ``scene``
+
+
+@contextmanager
+def not_a_dashboard() -> Iterator[str]:
+    """A plain HTTP server on 127.0.0.1 answering 404 to everything, as a web server that is not Ray's would."""
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), http.server.SimpleHTTPRequestHandler)
+    server.RequestHandlerClass = type("NotFound", (http.server.BaseHTTPRequestHandler,), {"do_GET": _not_found})
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        yield f"http://127.0.0.1:{server.server_address[1]}"
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
+def _not_found(handler: http.server.BaseHTTPRequestHandler) -> None:
+    handler.send_error(404)
 
 
 def _snapshot(root: Path) -> dict[str, str]:

@@ -236,6 +236,7 @@ def test_a_corpus_rewritten_in_place_is_a_new_run(tmp_path: Path) -> None:
     first = load_run_config(None, data=config_dict(root, tmp_path / "run"))
     assert first.run_id() == load_run_config(None, data=config_dict(root, tmp_path / "run")).run_id()
     write_resolved_config(first)
+    (tmp_path / "run" / "styles").mkdir()  # the first run made something: a folder of nothing would be taken over
     shutil.rmtree(root)
     generate_corpus(root, 10, seed=0)  # same path, same ids, rewritten
     again = load_run_config(None, data=config_dict(root, tmp_path / "run"))
@@ -352,3 +353,4 @@ def test_deploy_manifests_keep_the_dashboard_off_public_interfaces() -> None:
     assert cluster["headGroupSpec"]["serviceType"] == job["headGroupSpec"]["serviceType"] == "ClusterIP"
     local = (deploy / "local-cluster.sh").read_text(encoding="utf-8")
     assert "--node-ip-address 127.0.0.1" in local and "--dashboard-host 127.0.0.1" in local
+    assert "ray_start_loopback.py" in local and (deploy / "ray_start_loopback.py").is_file()

@@ -243,6 +243,7 @@ def test_force_starts_over_and_foreign_folders_are_left_alone(corpus: Path, tmp_
 
     old = load_run_config(None, data={**config_dict(corpus, tmp_path / "run"), "seed": 9})
     write_resolved_config(old)
+    (tmp_path / "run" / "styles").mkdir()  # the old run made something (a run that made nothing is taken over)
     (tmp_path / "run" / ".unit-00001.parquet.1.abc.tmp").write_text("half")
     new = load_run_config(None, data=config_dict(corpus, tmp_path / "run"))
     with RunLock(tmp_path / "run"):

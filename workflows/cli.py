@@ -291,7 +291,10 @@ def pretrain(
     from motionaug.schemas.run_config import apply_overrides
 
     with usage_errors():
-        options = apply_overrides({}, overrides or [])
+        try:
+            options = apply_overrides({}, overrides or [])
+        except ValueError as err:
+            raise MotionDataError("--set", str(err)) from None
     mdm = {"from_mdm": from_mdm, "clip_weights": clip_weights, "mdm_stats": mdm_stats}
     options |= {name: str(path.resolve()) for name, path in mdm.items() if path is not None}
     config = run_safely(lambda: PretrainConfig.for_size(size, seed=seed, **options))
@@ -395,12 +398,15 @@ def run_command(
     lock_wait: Annotated[
         float, typer.Option(min=0, help="Seconds to wait for the run folder's current writer to exit, then refuse.")
     ] = 0.0,
+    allow_empty: Annotated[
+        bool, typer.Option("--allow-empty", help="Accept a run whose filters select, or that writes, 0 clips.")
+    ] = False,
 ) -> None:
     """Fine-tune every style and stylize the corpus into Parquet shards; re-running resumes."""
     from contextlib import nullcontext
 
     from motionaug.workflows.dashboard import dashboard_session, hold_dashboard
-    from motionaug.workflows.pipeline import check_config
+    from motionaug.workflows.preflight import preflight
     from motionaug.workflows.progress_log import LineProgress
     from motionaug.workflows.ray_executor import execute_run
 
@@ -408,7 +414,9 @@ def run_command(
         cfg = _load_config(config, overrides or [], address, out)
         if dashboard or keep_dashboard:
             cfg = cfg.model_copy(update={"compute": cfg.compute.model_copy(update={"include_dashboard": True})})
-        check_config(cfg)
+        if allow_empty:
+            cfg = cfg.model_copy(update={"allow_empty": True})
+        preflight(cfg)
     if dry_run:
         from motionaug.workflows.dry_run import dry_run_report, plan_run
 
@@ -446,6 +454,8 @@ def _print_run_summary(summary: RunSummary) -> None:
 def _load_config(path: Path, overrides: list[str], address: str | None, out: Path | None) -> RunConfig:
     from motionaug.schemas.run_config import load_run_config
 
+    if path.is_dir():
+        raise MotionDataError(str(path), "is a folder; give the run config file (YAML or JSON) in it")
     if not path.is_file():
         raise MotionDataError(str(path), "config file not found")
     try:
@@ -515,15 +525,16 @@ def submit_command(
 ) -> None:
     """Submit the run to a Ray cluster through the Jobs API; the job id is motionaug-<run id>."""
     from motionaug.augment.methods.registry import validate_method_params
-    from motionaug.workflows.jobs import submit_run
-    from motionaug.workflows.pipeline import check_config
+    from motionaug.workflows.jobs import dashboard_url, submit_run
+    from motionaug.workflows.preflight import preflight
 
     with usage_errors():
+        dashboard_url(address)
         cfg = _load_config(config, overrides or [], None, out)
         if cluster_paths:
             validate_method_params(cfg.method.name, cfg.method.params)
         else:
-            check_config(cfg)
+            preflight(cfg, local=False)
     job = run_safely(lambda: submit_run(cfg, address, retry=retry, name=config.stem))
     console.print(f"submitted job {job.job_id} ({job.name}; run {job.run_id}, folder {job.run_dir})", highlight=False)
     console.print(f"dashboard: {job.dashboard_url}/#/jobs/{job.job_id}", highlight=False)
@@ -568,6 +579,9 @@ def export_command(
     min_content_score: Annotated[float | None, typer.Option(help="Keep stylized clips scoring at least this.")] = None,
     keep_mean_std: Annotated[bool, typer.Option("--keep-mean-std", help="Keep the source Mean/Std.")] = False,
     style: Annotated[str | None, typer.Option(help="--format bvh: only this style.")] = None,
+    allow_empty: Annotated[
+        bool, typer.Option("--allow-empty", help="Accept an export that adds 0 stylized clips.")
+    ] = False,
 ) -> None:
     """Original corpus + stylized train clips as a HumanML3D folder or one merged Parquet dataset.
 
@@ -588,7 +602,15 @@ def export_command(
         return
     with console.status(f"exporting {run} to {out}"), off_terminal("export", unit="clips") as beat:
         s = run_safely(
-            lambda: export_run(run, out, fmt, min_content_score, keep_mean_std, progress=beat.update if beat else None)
+            lambda: export_run(
+                run,
+                out,
+                fmt,
+                min_content_score,
+                keep_mean_std,
+                progress=beat.update if beat else None,
+                allow_empty=allow_empty,
+            )
         )
     console.print(
         f"wrote {s.originals} original + {s.stylized} stylized clips to {s.out} ({s.format}); "

@@ -26,7 +26,7 @@ from pydantic import ValidationError
 from rich.console import Console
 from rich.markup import escape
 
-from motionaug.schemas.errors import MotionDataError, first_error
+from motionaug.schemas.errors import MotionConfigError, MotionDataError, first_error
 from motionaug.workflows.progress_log import Heartbeat
 
 EXIT_FAILURE = 1
@@ -133,7 +133,7 @@ def error_line(err: BaseException) -> str | None:
             where, message = first_error(e, e.title)
             return f"{e.title}: {where}: {message}"
         if isinstance(e, MotionDataError):
-            return str(e).splitlines()[0]
+            return _bounded(str(e).splitlines()[0])
         if isinstance(e, OSError) and (e.errno in OS_REASONS or e.filename is not None or _SHORT_WRITE.search(str(e))):
             return os_error_line(e)
         if isinstance(e, MemoryError):
@@ -141,14 +141,28 @@ def error_line(err: BaseException) -> str | None:
     return None
 
 
+MAX_LINE = 600
+
+
+def _bounded(line: str) -> str:
+    """A line of at most ``MAX_LINE`` characters: an error naming 10,000 joints stays one readable line. Its start
+    (the thing) and its end (the fix, where there is one) are kept; the middle is cut."""
+    if len(line) <= MAX_LINE:
+        return line
+    head, tail = MAX_LINE * 3 // 5, MAX_LINE * 2 // 5 - 5
+    return f"{line[:head]} ... {line[-tail:]}"
+
+
 def report_error(err: BaseException, code: int) -> int:
     """Print the error's one line (and, with --debug, its traceback first); returns the exit code to use."""
     if debugging():
         traceback.print_exception(err, file=sys.stderr)
     line = error_line(err)
+    if any(isinstance(e, MotionConfigError) for e in _causes(err)):
+        code = EXIT_USAGE  # a config setting, even when a Ray task or the cluster found it out
     if line is None:
         first = (str(err).splitlines() or [""])[0]
-        line = f"unexpected {type(err).__name__}: {first} (rerun with --debug for the traceback)"
+        line = f"unexpected {type(err).__name__}: {_bounded(first)} (rerun with --debug for the traceback)"
         code = EXIT_FAILURE
     err_console.print(f"[red]error:[/red] {escape(line)}", highlight=False)
     return code

@@ -33,6 +33,9 @@ def preview_command(
         int | None, typer.Option(min=1, help="With --html: the N worst clips of a run by --by (limb agreement).")
     ] = None,
     by: ByOption = "limb_agreement",
+    max_frames: Annotated[
+        int, typer.Option(min=1, max=20_000, help="Animate at most this many frames (a long clip is cut short).")
+    ] = 600,
 ) -> None:
     """Animate a clip beside its stylized version (a run), or one clip of a corpus; --grid: a PNG contact sheet;
     --html: the 3D viewer of a chosen subset (default folder: previews/viewer in the run, ./previews/viewer-NAME)."""
@@ -52,9 +55,9 @@ def preview_command(
         if grid is not None:
             written = run_safely(lambda: preview_grid(path, grid, out, seed=seed))
         elif RunDir(path).is_run():
-            written = run_safely(lambda: preview_transfer(path, clip, style, out))
+            written = run_safely(lambda: preview_transfer(path, clip, style, out, max_frames=max_frames))
         else:
-            written = run_safely(lambda: preview_corpus(path, clip, out))
+            written = run_safely(lambda: preview_corpus(path, clip, out, max_frames=max_frames))
     console.print(f"wrote {written}")
 
 

@@ -12,6 +12,7 @@ from typing import Annotated, Literal
 
 import typer
 
+from motionaug.schemas.errors import MotionDataError
 from motionaug.workflows.cli_app import app, err_console, run_safely, usage_errors
 
 
@@ -39,7 +40,8 @@ def stream_command(
     with usage_errors():
         kind = kind or (source.suffix.lstrip(".").lower() if source else "bvh")
         if kind not in ("bvh", "npy"):
-            raise typer.BadParameter(f"--input-format must be bvh or npy, not {kind!r}")
+            given = "--input-format" if source is None or kind != source.suffix.lstrip(".").lower() else "--input"
+            raise MotionDataError(given, f"reads .bvh or .npy motion, not {kind!r}; pass --input-format bvh or npy")
         fmt = fmt or (out.suffix.lstrip(".").lower() if out else ("bvh" if kind == "bvh" else "text"))
     reader = source if source is not None else sys.stdin.buffer
     writer = out if out is not None else (sys.stdout if fmt == "text" else sys.stdout.buffer)

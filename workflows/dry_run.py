@@ -19,7 +19,7 @@ from rich.table import Table
 from motionaug.augment.corpus import Corpus
 from motionaug.schemas.run_config import RunConfig
 from motionaug.schemas.shards import Plan
-from motionaug.workflows.pipeline import PlanStage, check_config, keep_clip, trained_dir
+from motionaug.workflows.pipeline import PlanStage, check_config, keep_clip, over_limit, trained_dir
 from motionaug.workflows.progress_log import format_seconds
 
 
@@ -119,7 +119,7 @@ def plan_run(config: RunConfig) -> DryRun:
     all_ids: set[str] = set()
     for clip, file_key in corpus.with_files():  # streamed, as in PlanStage.run
         all_ids.add(clip.id)
-        if keep_clip(clip, config):
+        if over_limit(clip, config) is None and keep_clip(clip, config):
             chosen.append((clip.id, file_key, Corpus.split_of(clip, file_splits)))
             frames[clip.id] = clip.n_frames
     stage = PlanStage(config, method)

@@ -23,6 +23,7 @@ from motionaug.workflows.pipeline import (
     TrainStage,
     TransferStage,
     build_manifest,
+    empty_run,
     publish_record,
     trained_sha256,
 )
@@ -164,6 +165,8 @@ def run_pipeline(config: RunConfig, backend: Backend, progress: RunProgress | No
     manifest = build_manifest(config, plan, artifacts, shards, timings, trained)
     from motionaug.augment.outputs.run_dir import RunDir
 
+    if manifest.rows == 0 and plan.n_clips and not config.allow_empty:
+        raise empty_run(RunDir(config.output), plan.n_clips)
     RunDir(config.output).write_manifest(manifest)
     timings["manifest"] = StageTiming(seconds=time.perf_counter() - start, tasks=1)
     manifest.stages = timings

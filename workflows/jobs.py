@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.errors import MotionConfigError, MotionDataError
 from motionaug.schemas.run_config import RunConfig
 
 if TYPE_CHECKING:
@@ -62,8 +62,23 @@ def dashboard_url(address: str) -> str:
     """``HEAD:8265`` or ``http://HEAD:8265/`` -> ``http://HEAD:8265`` (the Jobs API speaks HTTP)."""
     address = address.strip().rstrip("/")
     if not address:
-        raise MotionDataError("--address", "empty; give the dashboard URL, e.g. http://HEAD:8265")
-    return address if "://" in address else f"http://{address}"
+        raise MotionConfigError("--address", "empty; give the dashboard URL, e.g. http://HEAD:8265")
+    scheme = address.split("://", 1)[0].lower() if "://" in address else "http"
+    if scheme not in ("http", "https"):
+        hint = "a Ray Client address" if scheme == "ray" else f"a {scheme}:// address"
+        reason = f"is {hint}; the Jobs API needs the cluster's dashboard URL, e.g. http://HEAD:8265"
+        raise MotionConfigError(f"--address {address}", reason)
+    url = address if "://" in address else f"http://{address}"
+    from urllib.parse import urlsplit
+
+    try:
+        parts = urlsplit(url)
+        port = parts.port
+    except ValueError as err:
+        raise MotionConfigError(f"--address {address}", f"not a URL ({err}); e.g. http://HEAD:8265") from None
+    if not parts.hostname or (port is not None and not 0 < port < 65536):
+        raise MotionConfigError(f"--address {address}", "not a URL with a host; e.g. http://HEAD:8265")
+    return url
 
 
 def auth_headers() -> dict[str, str]:
@@ -88,7 +103,12 @@ def connect(address: str) -> JobSubmissionClient:
 
     url = dashboard_url(address)
     with _cluster_errors(url):
-        return JobSubmissionClient(url, headers=auth_headers())
+        try:
+            return JobSubmissionClient(url, headers=auth_headers())
+        except RuntimeError as err:  # a server that answers but is not a Ray dashboard (its version check fails)
+            first = (str(err).splitlines() or [""])[0][:200]
+            reason = f"not a Ray dashboard ({first}); give the cluster's dashboard URL, e.g. http://HEAD:8265"
+            raise MotionDataError(url, reason) from None
 
 
 @contextmanager
@@ -101,8 +121,10 @@ def _cluster_errors(url: str) -> Iterator[None]:
     except AuthenticationError as err:
         first = str(err).splitlines()[0]
         raise MotionDataError(url, f"token refused ({first}); see docs/scale-out.md") from None
-    except ConnectionError:
-        raise MotionDataError(url, "cannot reach the Ray dashboard (is the cluster up and the port right?)") from None
+    except (ConnectionError, OSError) as err:  # requests' errors are OSErrors; ConnectionError: refused, reset
+        detail = "" if isinstance(err, ConnectionError) else f" ({type(err).__name__})"
+        reason = f"cannot reach the Ray dashboard{detail} (is the cluster up and the port right?)"
+        raise MotionDataError(url, reason) from None
 
 
 def _job_missing(err: RuntimeError) -> bool:

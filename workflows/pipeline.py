@@ -44,8 +44,28 @@ CORPUS_REJECTS = "corpus.jsonl"
 
 @dataclass(frozen=True)
 class Resources:
+    """What one task of a stage asks Ray for, and the config settings that ask it (named when it cannot fit)."""
+
     cpus: float = 1.0
     gpus: float = 0.0
+    cpu_setting: str = ""
+    gpu_setting: str = ""
+
+
+def finetune_resources(config: RunConfig) -> Resources:
+    c = config.compute
+    return Resources(c.finetune_cpus, c.finetune_gpus, "compute.finetune_cpus", "compute.finetune_gpus")
+
+
+def transfer_resources(config: RunConfig) -> Resources:
+    c = config.compute
+    return Resources(c.transfer_cpus, c.transfer_gpus, "compute.transfer_cpus", "compute.transfer_gpus")
+
+
+def stage_resources(config: RunConfig, trains: bool) -> dict[str, Resources]:
+    """Stage name -> what each of its tasks asks for (the plan stage's one CPU is within any of these)."""
+    stages = {"train": finetune_resources(config)} if trains else {}
+    return stages | {"prepare": finetune_resources(config), "transfer": transfer_resources(config)}
 
 
 def derive_seed(*parts: object) -> int:
@@ -129,6 +149,49 @@ def keep_clip(clip: MotionClip, config: RunConfig) -> bool:
     return True
 
 
+def over_limit(clip: MotionClip, config: RunConfig) -> Reject | None:
+    """A reject for a clip longer than the run's per-clip limit (``corpus.max_clip_frames``), else None."""
+    limit = config.clip_frames()
+    if clip.n_frames <= limit:
+        return None
+    reason = f"{clip.n_frames} frames, more than corpus.max_clip_frames={limit}; cut the clip or raise the limit"
+    return Reject(id=clip.id, source=clip.source or str(config.corpus.path), reason=reason)
+
+
+def commonest(rejects: Sequence[Reject]) -> str:
+    """``most often: <reason> (<n> of <m>)`` over rejects (empty when there are none)."""
+    if not rejects:
+        return ""
+    counts: dict[str, int] = {}
+    for reject in rejects:
+        counts[reject.reason] = counts.get(reject.reason, 0) + 1
+    reason, n = max(counts.items(), key=lambda item: (item[1], item[0]))
+    return f"most often: {reason[:160]} ({n} of {len(rejects)})"
+
+
+def empty_selection(config: RunConfig, readable: int, rejects: Sequence[Reject]) -> MotionDataError:
+    """The error of a plan that selects no clip: the filters matched none, or no clip of the corpus was readable."""
+    hint = "; pass --allow-empty to run anyway"
+    if readable:
+        return MotionDataError("config corpus.filters", f"select 0 of the {readable} readable clips; loosen them{hint}")
+    split = f" (split {config.corpus.split})" if config.corpus.split else ""
+    why = f"; {commonest(rejects)}" if rejects else ""
+    return MotionDataError("config corpus.path", f"{config.corpus.path}{split} has no readable clip{why}{hint}")
+
+
+def empty_run(run_dir: RunDir, clips: int) -> MotionDataError:
+    """The error of a run whose every transfer was rejected, with the commonest reason from its rejects files."""
+    from motionaug.augment.corpus.rejects import read_rejects
+
+    rejects = [r for path in sorted(run_dir.rejects_dir.glob("style=*/*.jsonl")) for r in read_rejects(path)]
+    why = f"; {commonest(rejects)}" if rejects else ""
+    reason = (
+        f"run wrote 0 rows from {clips} clips{why}; see {run_dir.rejects_dir}, fix the config and rerun with --force"
+        " (or pass --allow-empty)"
+    )
+    return MotionDataError(str(run_dir.root), reason)
+
+
 def styles_for(clip_id: str, styles: Sequence[str], per_clip: str | int, seed: int) -> list[str]:
     """The styles a clip is stylized in: all, or ``per_clip`` of them drawn deterministically per clip."""
     if per_clip == "all":
@@ -210,13 +273,19 @@ class PlanStage(Stage):
         file_splits = corpus.file_splits()
         chosen: list[tuple[str, str, str | None]] = []  # (id, file, split)
         all_ids: set[str] = set()
+        too_long: list[Reject] = []
         for clip, file_key in corpus.with_files():
             all_ids.add(clip.id)
-            if keep_clip(clip, self.config):
+            if (reject := over_limit(clip, self.config)) is not None:
+                too_long.append(reject)
+            elif keep_clip(clip, self.config):
                 chosen.append((clip.id, file_key, Corpus.split_of(clip, file_splits)))
         self._check_example_ids(all_ids)
-        write_rejects(corpus.rejects, self.run_dir.rejects_dir / CORPUS_REJECTS)
-        return self._units(sorted(chosen), len(corpus.rejects))
+        rejects = corpus.rejects + too_long
+        write_rejects(rejects, self.run_dir.rejects_dir / CORPUS_REJECTS)
+        if not chosen and not self.config.allow_empty:
+            raise empty_selection(self.config, len(all_ids) - len(too_long), rejects)
+        return self._units(sorted(chosen), len(rejects))
 
     def _check_example_ids(self, all_ids: set[str]) -> None:
         """Example ids must name corpus clips; outside the run's split (an example from train) they are looked up."""
@@ -279,7 +348,7 @@ class TrainStage(Stage):
         self.target = trained_dir(config)
 
     def resources(self) -> Resources:
-        return Resources(cpus=self.config.compute.finetune_cpus, gpus=self.config.compute.finetune_gpus)
+        return finetune_resources(self.config)
 
     def keys(self) -> list[Hashable]:
         return ["trained"] if self.method.trains else []
@@ -329,7 +398,7 @@ class PrepareStage(Stage):
         self.trained_hash = trained_hash
 
     def resources(self) -> Resources:
-        return Resources(cpus=self.config.compute.finetune_cpus, gpus=self.config.compute.finetune_gpus)
+        return finetune_resources(self.config)
 
     def keys(self) -> list[Hashable]:
         return [s.name for s in self.config.styles]
@@ -394,7 +463,7 @@ class TransferStage(Stage):
         self._artifacts: dict[str, str | None] = {}  # style -> checksum of its current artefact (None: remade)
 
     def resources(self) -> Resources:
-        return Resources(cpus=self.config.compute.transfer_cpus, gpus=self.config.compute.transfer_gpus)
+        return transfer_resources(self.config)
 
     def keys(self) -> list[Hashable]:
         return [UnitKey(s.name, u.unit) for s in self.config.styles for u in self.plan.units if u.styles.get(s.name)]

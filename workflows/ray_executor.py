@@ -15,18 +15,19 @@ import os
 import sys
 import time
 from collections.abc import Hashable, Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from motionaug.augment.outputs.run_dir import RunDir
 from motionaug.augment.outputs.run_lock import LOCK_FILE, RunLock
-from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.errors import MotionConfigError, MotionDataError
 from motionaug.schemas.run_config import ComputeConfig, RunConfig, resolve_paths
 from motionaug.schemas.shards import Manifest
 from motionaug.workflows.executor import RunProgress, run_pipeline, run_unit
-from motionaug.workflows.pipeline import Stage, check_config, write_resolved_config
+from motionaug.workflows.pipeline import Resources, Stage, write_resolved_config
+from motionaug.workflows.preflight import plural, preflight, probe_address, unfit
 
 
 @dataclass
@@ -72,6 +73,12 @@ def loopback_only() -> Iterator[None]:
             os.environ.pop(LOOPBACK_SWITCH, None)
         else:
             os.environ[LOOPBACK_SWITCH] = before
+
+
+def is_loopback(address: str) -> bool:
+    """Whether a cluster address names this machine's loopback (``127.0.0.1:6379``, ``localhost:6379``, ``ray://...``)."""
+    host = address.rpartition("://")[2].split("/", 1)[0].rpartition(":")[0].strip("[]")
+    return host in ("127.0.0.1", "localhost", "::1")
 
 
 def _check_loopback() -> None:
@@ -126,8 +133,11 @@ def ray_session(compute: ComputeConfig) -> Iterator[Any]:
     (``ray get-auth-token --generate`` before ``ray start --head``) or in ``RAY_AUTH_TOKEN``. The embedded
     cluster binds 127.0.0.1 only (``loopback_only``; docs/ray.md, Security).
     """
-    if compute.address is None and "ray" not in sys.modules:
-        with loopback_only():
+    loopback = compute.address is None or is_loopback(compute.address)
+    if compute.address:
+        client_auth_for_address()  # before Ray is imported: it reads RAY_AUTH_MODE then
+    if loopback and "ray" not in sys.modules:
+        with loopback_only():  # Ray reads the switch when it is first imported
             import ray
     import ray
 
@@ -137,8 +147,14 @@ def ray_session(compute: ComputeConfig) -> Iterator[Any]:
     ray_environment()
     options: dict[str, Any] = {"include_dashboard": compute.include_dashboard, "log_to_driver": True}
     if compute.address:
-        client_auth_for_address()
-        context = ray.init(address=compute.address, **options)
+        try:
+            with loopback_only() if loopback else nullcontext():  # 127.0.0.1 stays 127.0.0.1 (deploy/local-cluster.sh)
+                context = ray.init(address=compute.address, **options)
+        except (ConnectionError, RuntimeError, TimeoutError) as err:
+            first = (str(err).splitlines() or [type(err).__name__])[0]
+            raise MotionDataError(
+                f"--address {compute.address}", f"cannot join the Ray cluster ({first[:200]})"
+            ) from None
     else:
         with loopback_only():
             context = ray.init(  # address="local": never a stale "current cluster"
@@ -171,25 +187,46 @@ def ray_unit(stage: Stage, key: Hashable, dependency: Any) -> Any:
     return run_unit(stage, key, dependency)
 
 
-class RayBackend:
-    """Each unit a named Ray task; a dependency still running is passed as its object reference."""
+def node_resources() -> list[dict[str, float]]:
+    """Total resources of each alive node of the cluster this process is connected to."""
+    import ray
 
-    def __init__(self, retries: int) -> None:
+    return [dict(node.get("Resources", {})) for node in ray.nodes() if node.get("Alive")]
+
+
+class RayBackend:
+    """Each unit a named Ray task; a dependency still running is passed as its object reference.
+
+    A task that asks for more than any node has would wait forever (Ray only logs an autoscaler message), so such
+    tasks are watched: with ``unschedulable_s`` 0 (an embedded Ray: nothing can add a node) the first one stops the
+    run at once, else when no node that fits has joined after ``unschedulable_s``; the error names the setting."""
+
+    def __init__(self, retries: int, unschedulable_s: float = 0.0, poll_s: float = 5.0) -> None:
         import ray
 
         self.remote = ray.remote(ray_unit)
         self.retries = retries
         self.shared: dict[int, tuple[Stage, Any]] = {}
         self.waits_on: dict[Any, Any] = {}  # task -> the task result (object reference) it takes as input
+        self.unschedulable_s = unschedulable_s
+        self.poll_s = poll_s
+        self.nodes = node_resources()
+        self.unfit: dict[Any, tuple[str, Resources]] = {}  # task -> (stage, request) that no node can hold
+        self.unfit_since: float | None = None
 
     def submit(self, stage: Stage, key: Hashable, dependency: Any) -> Any:
         import ray
 
         res = stage.resources()
+        if unfit(res, self.nodes) is not None and self.unschedulable_s <= 0:
+            raise unschedulable(stage.name, res, self.nodes, waited_s=None)
         options = {"name": stage.task_name(key), "num_cpus": res.cpus, "num_gpus": res.gpus}
         handle = self.remote.options(max_retries=self.retries, **options).remote(self._put(stage), key, dependency)
         if isinstance(dependency, ray.ObjectRef):
             self.waits_on[handle] = dependency
+        if unfit(res, self.nodes) is not None:
+            self.unfit[handle] = (stage.name, res)
+            self.unfit_since = self.unfit_since or time.monotonic()
         return handle
 
     def _put(self, stage: Stage) -> Any:
@@ -205,8 +242,25 @@ class RayBackend:
     def wait(self, handles: Sequence[Any]) -> tuple[Any, Any]:
         import ray
 
-        ready, _ = ray.wait(list(handles), num_returns=1)
-        return ready[0], _get(ready[0])
+        while True:
+            ready, _ = ray.wait(list(handles), num_returns=1, timeout=self.poll_s if self.unfit else None)
+            if ready:
+                self.unfit.pop(ready[0], None)
+                return ready[0], _get(ready[0])
+            self._check_schedulable(handles)
+
+    def _check_schedulable(self, handles: Sequence[Any]) -> None:
+        """Stop when tasks no node can hold have waited ``unschedulable_s`` and no node that fits has joined."""
+        if self.unfit_since is None or time.monotonic() - self.unfit_since < self.unschedulable_s:
+            return
+        self.nodes = node_resources()
+        waiting = set(handles)
+        for handle, (stage, request) in list(self.unfit.items()):
+            if handle not in waiting or unfit(request, self.nodes) is None:
+                del self.unfit[handle]
+                continue
+            raise unschedulable(stage, request, self.nodes, waited_s=self.unschedulable_s)
+        self.unfit_since = None
 
     def abandon(self, handles: Sequence[Any], grace_s: float = 20.0) -> None:
         """Cancel the run's other tasks and give them ``grace_s`` to end before the driver goes: a task that fails
@@ -226,6 +280,16 @@ class RayBackend:
             if dependency is None or _succeeded(dependency):
                 ray.cancel(handle)
         ray.wait(list(handles), num_returns=len(handles), timeout=grace_s)
+
+
+def unschedulable(stage: str, request: Resources, nodes: list[dict[str, float]], waited_s: float | None) -> Exception:
+    """The one line for a stage whose tasks ask for more than any node of the cluster has."""
+    setting, amount, kind, most = unfit(request, nodes) or ("compute", 0.0, "?", 0.0)
+    has = "none" if most == 0 else f"at most {most:g} per node"
+    waited = f"; no node that has them joined in {waited_s:g} s" if waited_s else ""
+    asks = f"{stage} tasks ask for {amount:g} {kind}{plural(amount)} each"
+    reason = f"{asks}, but the cluster's nodes have {has}{waited}"
+    return MotionConfigError(f"config {setting}", reason)
 
 
 def _succeeded(ref: Any) -> bool:
@@ -270,8 +334,8 @@ def prepare_run_dir(config: RunConfig, force: bool) -> None:
             raise MotionDataError(
                 str(root), "output folder is not empty and is not a motionaug run; choose another --out"
             )
-        if force:
-            run.clear()
+        if force or (recorded != config.run_id() and not holds_work(root)):
+            run.clear()  # --force, or a run that failed before it made anything: not a claim on the folder
         elif recorded != config.run_id():
             reason = (
                 f"holds run {recorded}, but this config is run {config.run_id()} (the config or the corpus changed);"
@@ -280,6 +344,15 @@ def prepare_run_dir(config: RunConfig, force: bool) -> None:
             raise MotionDataError(str(root), reason)
     run.success_path.unlink(missing_ok=True)
     run.sweep_temporaries()
+
+
+NO_WORK = frozenset({LOCK_FILE, "config.resolved.json", "plan.json", "rejects"})
+
+
+def holds_work(root: Path) -> bool:
+    """Whether a run folder holds anything a run made (base models, style artefacts, shards, a manifest): a run
+    that failed before (a config mistake found by a task) holds only its config, plan and rejects."""
+    return any(path.name not in NO_WORK and not path.name.endswith(".tmp") for path in root.iterdir())
 
 
 # ---- the run ---------------------------------------------------------------------------------------
@@ -292,13 +365,17 @@ def execute_run(
     and timings. Relative paths are made absolute against the working directory first, so what the run stores
     reads back from anywhere. ``lock_wait_s``: how long to wait for a folder's previous writer to exit."""
     config = resolve_paths(config, Path.cwd())
-    check_config(config)
+    preflight(config)
+    compute = config.compute
+    if compute.address is not None:
+        probe_address(compute.address, compute.connect_timeout_s)
     with RunLock(config.output, wait_s=lock_wait_s):
         prepare_run_dir(config, force)
         write_resolved_config(config)
         start = time.perf_counter()
-        with ray_session(config.compute):
-            result = run_pipeline(config, RayBackend(config.compute.max_retries), progress)
+        with ray_session(compute):
+            waits = compute.unschedulable_timeout_s if compute.address is not None else 0.0
+            result = run_pipeline(config, RayBackend(compute.max_retries, unschedulable_s=waits), progress)
     return RunSummary(
         run_dir=config.output,
         run_id=config.run_id(),

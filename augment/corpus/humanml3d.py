@@ -72,10 +72,16 @@ def check_motion(motion: np.ndarray, feature_dim: int | None, source: str) -> No
         raise MotionDataError(source, f"NaN/Inf values from frame {first} ({int((~finite).sum())} bad frames)")
 
 
+MAX_CLIP_FRAMES = 20_000
+"""The most frames any clip may have (1,000 s at 20 fps; HumanML3D's are under 200): a longer one is refused from its
+header, before a byte of it is read, so one huge file cannot take the memory of a run, a preview or an export."""
+
+
 def load_npy(path: Path, ndim: int, width: int | None) -> np.ndarray:
     """Read a float .npy of ``ndim`` dims (last one ``width``) as float32, header first.
 
-    The header alone settles shape, dtype and truncation, so a bad file costs no more than its header.
+    The header alone settles shape, dtype, truncation and the ``MAX_CLIP_FRAMES`` ceiling, so a bad file costs no
+    more than its header.
     """
     source = str(path)
     try:
@@ -88,6 +94,9 @@ def load_npy(path: Path, ndim: int, width: int | None) -> np.ndarray:
             if dtype.kind != "f":
                 raise MotionDataError(source, f"dtype {dtype}, expected floating point")
             _check_data_size(handle, shape, dtype, source)
+            if ndim == 2 and shape[0] > MAX_CLIP_FRAMES:
+                reason = f"{shape[0]} frames, over the ceiling of {MAX_CLIP_FRAMES} a clip may have; cut it into clips"
+                raise MotionDataError(source, reason)
             flat = np.empty(math.prod(shape), dtype=dtype)
             got = handle.readinto(flat.view(np.uint8))
     except OSError as err:

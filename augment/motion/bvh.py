@@ -264,13 +264,24 @@ class _Tree:
     end_sites: dict[int, np.ndarray] = field(default_factory=dict)
 
 
-def _parse_joint(tok: _Tokens, tree: _Tree, parent: int) -> None:
-    """Parse one ROOT/JOINT block (name already at the cursor) and its children, recursively."""
+MAX_JOINTS = 1024  # a human rig has tens to a few hundred (fingers, face); more is not a skeleton
+MAX_DEPTH = 128  # joints from the root to a leaf: a spine and a finger chain are far below this
+
+
+def _parse_joint(tok: _Tokens, tree: _Tree, parent: int, depth: int = 1) -> None:
+    """Parse one ROOT/JOINT block (name already at the cursor) and its children, recursively (``MAX_DEPTH`` deep
+    at most, so a garbled or hostile file is an error naming the line, not a RecursionError)."""
+    if depth > MAX_DEPTH:
+        raise tok.fail(f"joints nested more than {MAX_DEPTH} deep; not a skeleton this reader takes")
+    if len(tree.names) >= MAX_JOINTS:
+        raise tok.fail(f"more than {MAX_JOINTS} joints; not a skeleton this reader takes")
     name = tok.rest_of_line("a joint name")
     if not name:
         raise tok.fail("joint without a name")
+    if len(name) > 200:
+        raise tok.fail(f"joint name of {len(name)} characters ({name[:40]!r}...)")
     if name in tree.names:
-        raise tok.fail(f"duplicate joint name {name!r}")
+        raise tok.fail(f"duplicate joint name {name[:60]!r}")
     tok.expect("{")
     tok.expect("OFFSET")
     offset = [tok.number(f"OFFSET of {name}") for _ in range(3)]
@@ -294,7 +305,7 @@ def _parse_joint(tok: _Tokens, tree: _Tree, parent: int) -> None:
         if upper == "}":
             return
         if upper == "JOINT":
-            _parse_joint(tok, tree, index)
+            _parse_joint(tok, tree, index, depth + 1)
         elif upper == "END":
             tok.expect("Site")
             tok.expect("{")

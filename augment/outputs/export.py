@@ -136,10 +136,12 @@ def export_run(
     keep_mean_std: bool = False,
     score_name: str = "content",
     progress: Callable[[str, int, int, dict[str, float]], None] | None = None,
+    allow_empty: bool = False,
 ) -> ExportSummary:
     """Write the original corpus + the run's stylized train clips to ``out``; returns what went where.
 
     ``progress(stage, done, total, {})`` hears of each clip read (``originals``: total 0, unknown; ``stylized``).
+    An export that would add no stylized clip is an error (nothing is written) unless ``allow_empty``.
     """
     run_dir, out = Path(run_dir), Path(out)
     if fmt not in ("humanml3d", "parquet"):
@@ -174,11 +176,23 @@ def export_run(
             "splits": summary.splits,
             "min_content_score": min_content_score,
         }
+        if summary.stylized == 0 and not allow_empty:
+            raise empty_export(out, manifest.rows, summary)
         atomic_write_text(tmp / EXPORT_FILE, json.dumps(record, indent=1, sort_keys=True) + "\n")
         _publish(tmp, out)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return summary
+
+
+def empty_export(out: Path, rows: int, summary: ExportSummary) -> MotionDataError:
+    """Why an export adds no stylized clip: the run has none, or every one is a val/test copy or below the score."""
+    if rows == 0:
+        why = "the run has 0 stylized rows"
+    else:
+        why = f"of the run's {rows} stylized rows, {summary.held_out} are val/test copies (left out)"
+        why += f" and {summary.below_score} are below --min-content-score" if summary.below_score else ""
+    return MotionDataError(str(out), f"export would add 0 stylized clips: {why}; pass --allow-empty to export anyway")
 
 
 def _write_humanml3d(collector: _Collector, tmp: Path, corpus: Path, keep_mean_std: bool) -> None:

@@ -46,7 +46,11 @@ def read_frames(source: str | os.PathLike[str] | BinaryIO, kind: Literal["bvh", 
         with tempfile.NamedTemporaryFile(suffix=".bvh") as tmp:
             tmp.write(source.read())
             tmp.flush()
-            joints, _ = load_bvh_as_t2m_joints(tmp.name)
+            try:
+                joints, _ = load_bvh_as_t2m_joints(tmp.name)
+            except MotionDataError as err:  # name the stream, not the temporary file it was copied to
+                name = _name(source)
+                raise MotionDataError(err.source.replace(tmp.name, name), err.reason.replace(tmp.name, name)) from None
     return extract_features(joints, T2M, source=_name(source))
 
 
