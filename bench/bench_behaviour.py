@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import os
+import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -25,14 +26,13 @@ STYLES = ("proud", "old")
 N_CLIPS = 40
 
 
-def use_tree(root: Path) -> None:
-    """Import ``motionaug`` from the worktree at ``root``, not from the installed (editable) copy."""
+def tree_env(root: Path) -> dict[str, str]:
+    """An environment whose ``motionaug`` is the worktree at ``root``, ahead of the installed (editable) copy."""
     shim = Path(tempfile.mkdtemp()) / "motionaug"
     shim.mkdir()
     for layer in ("schemas", "models", "augment", "workflows"):
         (shim / layer).symlink_to((root / layer).resolve())
-    sys.meta_path[:] = [f for f in sys.meta_path if "editable" not in type(f).__module__.lower()]
-    sys.path.insert(0, str(shim.parent))
+    return {**os.environ, "PYTHONPATH": str(shim.parent), "RAY_USAGE_STATS_ENABLED": "0"}
 
 
 def digest(chunks) -> str:
@@ -87,9 +87,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--root", type=Path, default=Path("."), help="the worktree whose code and configs to run")
     parser.add_argument("--configs", default=",".join(CONFIGS), help="comma-separated shipped config names")
+    parser.add_argument("--in-tree", action="store_true", help=argparse.SUPPRESS)  # the child run in --root's code
     args = parser.parse_args()
-    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-    use_tree(args.root)
+    if not args.in_tree:
+        command = [sys.executable, __file__, "--root", str(args.root), "--configs", args.configs, "--in-tree"]
+        raise SystemExit(subprocess.run(command, env=tree_env(args.root)).returncode)
     import torch
 
     import motionaug.augment

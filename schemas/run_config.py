@@ -184,11 +184,22 @@ class ComputeConfig(_Strict):
     include_dashboard: bool = False
 
 
+class HooksConfig(_Strict):
+    """Modules outside the package that register hooks (``augment.methods.hooks``) the method params name."""
+
+    modules: list[str] = Field(
+        default_factory=list,
+        description="Importable module names (e.g. lab.umsd_hooks), imported by the driver and every Ray worker "
+        "before the method is built; a module must import from the run's working directory or be installed.",
+    )
+
+
 class RunConfig(_Strict):
     version: Literal[1] = RUN_CONFIG_VERSION
     corpus: CorpusConfig
     styles: list[StyleSpec] = Field(min_length=1)
     method: MethodConfig = Field(default_factory=MethodConfig)
+    hooks: HooksConfig = Field(default_factory=HooksConfig)
     fan_out: FanOutConfig = Field(default_factory=FanOutConfig)
     base_models: BaseModelsConfig = Field(default_factory=BaseModelsConfig)
     compute: ComputeConfig = Field(default_factory=ComputeConfig)
@@ -225,6 +236,8 @@ class RunConfig(_Strict):
         keep["batching"] = [self.compute.unit_size, self.compute.batch_size]  # seeds are drawn per unit and batch
         keep["corpus"]["path"] = str(Path(keep["corpus"]["path"]).resolve())
         keep["corpus"]["content"] = self.corpus_fingerprint()
+        if self.hooks.modules:  # what registers the hooks the method names
+            keep["hooks"] = list(self.hooks.modules)
         digest = hashlib.sha256(json.dumps(keep, sort_keys=True).encode()).hexdigest()
         return f"run-{digest[:12]}"
 

@@ -73,6 +73,8 @@ class StyleTransferMethod(ABC):
     """How many content clips ``prepare`` learns from (0: none). The plan chooses them, whatever the unit size."""
     smoke_params: ClassVar[dict[str, Any]] = {}
     """Params for a seconds-long run of every step (the contract test, ``motionaug demo --size tiny``)."""
+    removed_params: ClassVar[Mapping[str, str]] = {}
+    """Settings that left ``Params`` (dotted for nested ones, ``train.w_acc``) and what to do instead."""
 
     def __init__(self, params: Mapping[str, Any] | BaseModel | None = None) -> None:
         self.params = self.parse_params(params)
@@ -83,6 +85,13 @@ class StyleTransferMethod(ABC):
         if isinstance(raw, cls.Params):
             return raw
         data = raw.model_dump() if isinstance(raw, BaseModel) else dict(raw or {})
+        for dotted, what in cls.removed_params.items():
+            *parents, leaf = dotted.split(".")
+            level: Any = data
+            for part in parents:
+                level = level.get(part) if isinstance(level, Mapping) else None
+            if isinstance(level, Mapping) and leaf in level:
+                raise MotionDataError(f"config method.params.{dotted}", f"{cls.name}: removed; {what}")
         try:
             return cls.Params.model_validate(data)
         except ValidationError as err:
