@@ -6,6 +6,8 @@
 - output shaper ``spectral_ceiling`` (``slack``, ``from_hz``): each generated channel's power per frequency band
   from ``from_hz`` up capped at slack^2 times the larger of the content's and the style example's.
 - output shaper ``smooth`` (``sigma``): every channel but the foot contacts Gaussian-filtered over time.
+- loss term ``acceleration`` (``weight``): L1 on joint accelerations, m/s^2: x0 predictions right on average but
+  shaking from frame to frame pay for the shake, which costs little in L_pos and L_vel.
 
 ``lab/umsd_rescore.py`` applies the shapers to saved outputs without sampling again.
 """
@@ -19,10 +21,13 @@ import torch
 
 from motionaug.augment.methods.common import feet_channels
 from motionaug.augment.methods.hooks import (
+    LossBatch,
+    LossTerm,
     OutputShaper,
     SamplerCallback,
     SamplerStep,
     ShapeContext,
+    loss_terms,
     output_shapers,
     sampler_callbacks,
 )
@@ -91,3 +96,22 @@ class Smooth(OutputShaper):
         out = output.copy()
         out[:, signal] = gaussian_smooth_time(torch.from_numpy(output[:, signal]), self.sigma, time_dim=0).numpy()
         return out
+
+
+def acceleration_l1(predicted: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, fps: float) -> torch.Tensor:
+    """L1 between the joint accelerations (m/s^2) of two joint sequences (B, T, J, 3), over the frames whose two
+    neighbours are real. A shake of +-e metres alternating frame to frame costs 4e fps^2 here."""
+
+    def acceleration(x: torch.Tensor) -> torch.Tensor:
+        velocity = (x[:, 1:] - x[:, :-1]) * fps
+        return (velocity[:, 1:] - velocity[:, :-1]) * fps
+
+    triple = (mask[:, 2:] & mask[:, 1:-1] & mask[:, :-2])[..., None, None].float()
+    acc = acceleration(predicted) - acceleration(target)
+    return (acc.abs() * triple).sum() / (triple.sum() * acc.shape[2] * 3).clamp(min=1)
+
+
+@loss_terms.register("acceleration")
+class Acceleration(LossTerm):
+    def __call__(self, batch: LossBatch) -> torch.Tensor:
+        return acceleration_l1(batch.predicted, batch.target, batch.mask, batch.fps)

@@ -3,11 +3,19 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
 from lab.umsd_hooks import SpectralCeiling, X0Smooth, masked_smooth
 from motionaug.augment.methods.common import feet_channels
-from motionaug.augment.methods.hooks import SamplerStep, ShapeContext, output_shapers, sampler_callbacks
+from motionaug.augment.methods.hooks import (
+    LossBatch,
+    SamplerStep,
+    ShapeContext,
+    loss_terms,
+    output_shapers,
+    sampler_callbacks,
+)
 from motionaug.augment.motion.spectrum import band_power
 
 
@@ -68,3 +76,20 @@ def test_the_spectral_ceiling_caps_power_above_its_frequency_only() -> None:
     torch.testing.assert_close(power(capped)[:from_band], power(output)[:from_band], rtol=1e-3, atol=1e-6)
     np.testing.assert_array_equal(capped[:, feet_channels()], output[:, feet_channels()])
     assert SpectralCeiling(0.0)(output, context) is output
+
+
+def test_the_acceleration_term_charges_frame_to_frame_shake_not_a_smooth_offset() -> None:
+    fps, frames, shake = 20.0, 30, 0.01  # metres
+    mask = torch.ones(2, frames, dtype=torch.bool)
+    mask[1, 20:] = False  # a padded row
+    target = torch.randn(2, frames, 22, 3).cumsum(dim=1) * 0.01
+    sign = (-1.0) ** torch.arange(frames)
+    shaken = target + shake * sign[None, :, None, None]
+    offset = target + torch.linspace(0, 0.2, frames)[None, :, None, None]  # a steady drift: no acceleration
+    term = loss_terms.create({"name": "acceleration", "weight": 0.1})
+    assert term.weight == 0.1
+    assert term(LossBatch(offset, target, mask, fps)).item() < 1e-4
+    assert term(LossBatch(shaken, target, mask, fps)).item() == pytest.approx(4 * shake * fps**2, rel=1e-4)
+    padded = shaken.clone()
+    padded[1, 20:] += 5.0  # whatever the padding holds costs nothing
+    assert term(LossBatch(padded, target, mask, fps)).item() == pytest.approx(4 * shake * fps**2, rel=1e-4)

@@ -74,8 +74,8 @@ class ErdMethod(LabelledNetworkMethod):
 
     # ---- once per run: the network ----------------------------------------------------------------------
 
-    def fit_network(self, clips: list[MotionClip], out: Path, progress: Progress | None) -> Path:
-        return train_erd(clips, out, self.params.train, progress)
+    def fit_network(self, clips: list[MotionClip], out: Path, config: Any, progress: Progress | None) -> Path:
+        return train_erd(clips, out, config, progress)
 
     # ---- once per style ---------------------------------------------------------------------------------
 

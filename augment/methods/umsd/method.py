@@ -32,6 +32,7 @@ from motionaug.augment.methods.base import (
     ARTIFACT_WEIGHTS,
     Progress,
     StyleModel,
+    TrainingSpec,
     TransferOutput,
 )
 from motionaug.augment.methods.common import (
@@ -60,6 +61,7 @@ from motionaug.augment.methods.umsd.training import (
     META_FILE,
     WEIGHTS_FILE,
     UmsdModel,
+    UmsdTrain,
     UmsdTrainConfig,
     load_umsd,
     pace_channels,
@@ -100,6 +102,21 @@ REMOVED = {
     "min_frames": f"shorter clips than {MIN_EXAMPLE_FRAMES} frames are rejected; drop the setting",
     "seed": "the run's seed sets the sampling noise; drop the setting",
 }
+NETWORK = "the network's size is the run's base_models.size (tiny, small, paper); drop the setting"
+LAB_RECIPE = "a research variant the lab sets on UmsdTrainConfig (lab/README.md); drop the setting"
+FIXED = "fixed at its default; drop the setting"
+REMOVED_TRAIN = {
+    **{f"train.{n}": NETWORK for n in ("d_model", "n_heads", "ff_size", "msm_blocks", "d_state", "expand")},
+    **{f"train.{n}": NETWORK for n in ("d_conv", "dropout", "max_len")},
+    **{f"train.{n}": LAB_RECIPE for n in ("denoiser", "use_ssm", "use_mha", "align_content", "skip_time")},
+    **{f"train.{n}": LAB_RECIPE for n in ("content_pace", "pace_steps")},
+    **{f"train.{n}": FIXED for n in ("weight_decay", "grad_clip", "min_frames", "w_rec", "threads")},
+    "train.seed": "the run's seed trains the network; drop the setting",
+    "train.use_dcc": "w_dcc: 0 is the sec. 4.5 ablation",
+    "train.use_dsc": "w_dsc: 0 is the sec. 4.5 ablation",
+    "train.w_acc": "the acceleration term is a lab loss term now: loss_terms: [{name: acceleration, weight: W}] "
+    "with hooks.modules: [lab.umsd_hooks]",
+}
 REFERENCE_POOL = 64  # content clips the plan hands ``prepare`` to pick the shapers' references from
 WINDOW_OVERLAP = 16  # least overlap of two sampling windows, frames (the blend ramp)
 KEPT = "horizontal"  # the content's root channels inpainted: its ground path and heading
@@ -111,7 +128,7 @@ class UmsdParams(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    train: UmsdTrainConfig = Field(default_factory=UmsdTrainConfig)
+    train: UmsdTrain = Field(default_factory=UmsdTrain)
     neutral_style: str = Field("neutral", description="The labelled corpus's name for neutral (Bandai: normal).")
     ddim_steps: int = Field(50, ge=1, le=NUM_TIMESTEPS, description="DDIM steps of a transfer (sec. 4.1)")
     guidance: Literal["none", "style"] = Field(
@@ -171,19 +188,9 @@ class UmsdMethod(LabelledNetworkMethod):
     name: ClassVar[str] = METHOD_NAME
     Params: ClassVar[type[BaseModel]] = UmsdParams
     params: UmsdParams
-    removed_params: ClassVar[dict[str, str]] = REMOVED
+    removed_params: ClassVar[dict[str, str]] = {**REMOVED, **REMOVED_TRAIN}
     smoke_params: ClassVar[dict[str, Any]] = {
-        "train": {
-            "steps": 3,
-            "batch_size": 2,
-            "max_frames": 40,
-            "d_model": 32,
-            "n_heads": 2,
-            "ff_size": 64,
-            "msm_blocks": 1,
-            "d_state": 4,
-            "log_every": 1,
-        },
+        "train": {"steps": 3, "batch_size": 2, "max_frames": 40, "log_every": 1},  # with base_models.size tiny
         "ddim_steps": 4,
         "batch_size": 4,
         "guidance": "style",
@@ -198,8 +205,12 @@ class UmsdMethod(LabelledNetworkMethod):
 
     # ---- once per run: the network ----------------------------------------------------------------------
 
-    def fit_network(self, clips: list[MotionClip], out: Path, progress: Progress | None) -> Path:
-        return train_umsd(clips, out, self.params.train, progress)
+    def training_config(self, spec: TrainingSpec) -> UmsdTrainConfig:
+        """``train`` with the network of the run's ``base_models.size`` and the run's seed."""
+        return self.params.train.recipe(spec.size, spec.seed)
+
+    def fit_network(self, clips: list[MotionClip], out: Path, config: Any, progress: Progress | None) -> Path:
+        return train_umsd(clips, out, config, progress)
 
     # ---- once per style ---------------------------------------------------------------------------------
 
