@@ -48,6 +48,7 @@ REMOVED_TRAIN = {
     **{f"train.{n}": FIXED for n in ("disc_stride_s", "lr_classifier", "w_style", "w_moments", "neutral_share")},
     **{f"train.{n}": FIXED for n in ("content_dropout", "residual_output", "threads")},
     "train.seed": "the run's seed trains the network; drop the setting",
+    "seed": "Style-ERD's transfer draws no noise; drop the setting",
 }
 
 
@@ -58,7 +59,6 @@ class ErdParams(BaseModel):
     neutral_style: str = Field("neutral", description="The labelled corpus's name for neutral (Bandai: normal).")
     intensity: float = Field(1.0, ge=0.0, le=1.0, description="Style intensity a (sec. 4.4): z' = r_0 + a r_S.")
     caption_variants: int = Field(1, ge=1, description="Revised captions per output clip.")
-    seed: int = 0
 
 
 class ErdMethod(LabelledNetworkMethod):

@@ -130,7 +130,7 @@ class UmsdParams(BaseModel):
 
     train: UmsdTrain = Field(default_factory=UmsdTrain)
     neutral_style: str = Field("neutral", description="The labelled corpus's name for neutral (Bandai: normal).")
-    ddim_steps: int = Field(50, ge=1, le=NUM_TIMESTEPS, description="DDIM steps of a transfer (sec. 4.1)")
+    ddim_steps: int = Field(50, ge=1, le=NUM_TIMESTEPS, description="DDIM steps of a transfer (of T = 1000)")
     guidance: Literal["none", "style"] = Field(
         "none",
         description="style: x0(c, c) + w (x0(c, s) - x0(c, c)), the content as its own style example standing "
