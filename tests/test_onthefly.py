@@ -37,7 +37,7 @@ from motionaug.augment.methods.onthefly import (
 from motionaug.augment.motion.features import compute_mean_std
 from motionaug.augment.motion.foot_lock import lock_feet
 from motionaug.augment.motion.tempo import retime
-from motionaug.augment.outputs.checksums import RUN_FACTS
+from motionaug.augment.outputs.checksums import TIMINGS_FILE
 from motionaug.augment.outputs.shards import TransferOutput
 from motionaug.augment.synth import STYLE_WORDS, sample_spec
 from motionaug.augment.synth.corpus import spec_to_clip
@@ -322,7 +322,7 @@ def test_lora_artifact_round_trip_gives_identical_transfers(
     assert info["weights_bytes"] <= 0.05 * info["full_model_bytes"]
     assert (out_dir / ARTIFACT_WEIGHTS).stat().st_size <= 0.05 * info["full_model_bytes"] + 4096
     assert len(info["loss_curve"]) == 4 and "timings" not in info  # wall-clock facts stay out of the artefact
-    assert "finetune_s" in json.loads((out_dir / RUN_FACTS).read_text())
+    assert "finetune_s" in json.loads((out_dir / TIMINGS_FILE).read_text())
     loaded = method.load(out_dir, base_dir)
     content = [clips["walk"], clips["kick"]]
     before, after = model.transfer(content, seed=1), loaded.transfer(content, seed=1)

@@ -592,7 +592,7 @@ def test_zero_shot_transfer_of_a_held_out_style(corpus: Path, tmp_path: Path) ->
     np.testing.assert_allclose(guided.load(itself, trained).transfer([short], seed=3)[0].motion, plain, atol=1e-4)
     # the moments shaper: the references are picked from the pool, one per example
     shaped = UmsdMethod({**params, "shapers": ["moments"]})
-    assert shaped.content_pool > 0 and method.content_pool == 0
+    assert shaped.content_clips() > 0 and method.content_clips() == 0
     with pytest.raises(MotionDataError, match="need usable content clips to pick the examples' references from"):
         shaped.prepare(style, [example], trained, [broken], tmp_path / "no-pool")
     with pytest.raises(MotionDataError, match="prepared without references"):

@@ -195,7 +195,7 @@ class PlanStage(Stage):
 
     def __init__(self, config: RunConfig, method: StyleTransferMethod) -> None:
         super().__init__(config)
-        self.pool_size = method.content_pool
+        self.pool_size = method.content_clips()
 
     def keys(self) -> list[Hashable]:
         return ["plan"]
@@ -354,7 +354,7 @@ class PrepareStage(Stage):
         style_name = str(key)
         method = create_method(self.config.method.name, self.config.method.params, self.config.hooks.modules)
         content: list[MotionClip] = []
-        if method.content_pool and self.plan.pool:
+        if method.content_clips() and self.plan.pool:
             content = Corpus(self.config.corpus.path).load(self.plan.pool, self.plan.pool_files)[0]
         style = next(s for s in self.config.styles if s.name == style_name)
         examples = load_examples(style, self.config)

@@ -44,6 +44,16 @@ TrainProgress = Callable[[str, int, int, dict[str, float]], None]
 
 
 @dataclass(frozen=True)
+class CostRates:
+    """A method's measured costs on the project VM (1 CPU per task, CPU torch), for ``motionaug run --dry-run``."""
+
+    prepare_s: float | None = None  # one style's prepare task; None: not measured
+    transfer_clips_per_s: float | None = None  # one transfer task
+    train_s: float | None = None  # the once-per-run training, when the method trains
+    artefact_bytes: int | None = None  # one style's published artefact
+
+
+@dataclass(frozen=True)
 class TrainingSpec:
     """What a run asks of a method's ``train``: the model size, preset overrides and the seed."""
 
@@ -69,8 +79,8 @@ class StyleTransferMethod(ABC):
     Params: ClassVar[type[BaseModel]]
     trains: ClassVar[bool] = False
     """Whether the method has a once-per-run ``train`` step."""
-    content_pool: ClassVar[int] = 0
-    """How many content clips ``prepare`` learns from (0: none). The plan chooses them, whatever the unit size."""
+    cost_rates: ClassVar[CostRates] = CostRates()
+    """Measured costs per task, the dry run's estimates (``CostRates``)."""
     smoke_params: ClassVar[dict[str, Any]] = {}
     """Params for a seconds-long run of every step (the contract test, ``motionaug demo --size tiny``)."""
     removed_params: ClassVar[Mapping[str, str]] = {}
@@ -97,6 +107,13 @@ class StyleTransferMethod(ABC):
         except ValidationError as err:
             where, message = first_error(err, "")
             raise MotionDataError(f"config method.params.{where}".rstrip("."), f"{cls.name}: {message}") from None
+
+    def content_clips(self) -> int:
+        """How many content clips of the plan's pool ``prepare`` is handed (0: none), as these params need them.
+
+        The plan chooses them once per run, whatever the unit size; every style's ``prepare`` sees the same ones.
+        """
+        return 0
 
     # ---- once per run ---------------------------------------------------------------------------------
 

@@ -411,7 +411,7 @@ def write_model_folder(out: Path, tensors: dict[str, dict[str, Tensor]], texts: 
     return out
 
 
-class LabelledNetworkMethod(StyleTransferMethod):
+class CorpusTrainedMethod(StyleTransferMethod):
     """A method whose network is trained once per run on a labelled style corpus (Style-ERD, UMSD).
 
     ``train`` fits ``fit_network`` on the corpus's train split (its neutral style renamed ``neutral``) and reuses a

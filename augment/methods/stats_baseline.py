@@ -25,6 +25,7 @@ from motionaug.augment.corpus.rejects import Reject
 from motionaug.augment.methods.base import (
     ARTIFACT_JSON,
     ARTIFACT_WEIGHTS,
+    CostRates,
     Progress,
     StyleTransferMethod,
     TransferOutput,
@@ -115,6 +116,7 @@ class StatsBaselineMethod(StyleTransferMethod):
     name: ClassVar[str] = "stats"
     Params: ClassVar[type[BaseModel]] = StatsParams
     params: StatsParams
+    cost_rates: ClassVar[CostRates] = CostRates(prepare_s=0.02, transfer_clips_per_s=380.0, artefact_bytes=8_000)
 
     def prepare(
         self,

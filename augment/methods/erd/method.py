@@ -21,13 +21,14 @@ from motionaug.augment.corpus import MotionClip, Reject
 from motionaug.augment.corpus.humanml3d import read_labels
 from motionaug.augment.methods.base import (
     ARTIFACT_JSON,
+    CostRates,
     Progress,
     StyleModel,
     TrainingSpec,
     TransferOutput,
 )
 from motionaug.augment.methods.common import (
-    LabelledNetworkMethod,
+    CorpusTrainedMethod,
     revised_texts,
     style_vocab,
 )
@@ -61,11 +62,12 @@ class ErdParams(BaseModel):
     caption_variants: int = Field(1, ge=1, description="Revised captions per output clip.")
 
 
-class ErdMethod(LabelledNetworkMethod):
+class ErdMethod(CorpusTrainedMethod):
     """Style-ERD (Tao et al., CVPR 2022) as a motionaug method."""
 
     name: ClassVar[str] = METHOD_NAME
     Params: ClassVar[type[BaseModel]] = ErdParams
+    cost_rates: ClassVar[CostRates] = CostRates(transfer_clips_per_s=19.0, train_s=733.0)
     params: ErdParams
     smoke_params: ClassVar[dict[str, Any]] = {
         "train": {"steps": 3, "batch_size": 4, "window_s": 0.8}  # with base_models.size tiny

@@ -20,6 +20,7 @@ from motionaug.augment.device import pick_device
 from motionaug.augment.io import atomic_write_text
 from motionaug.augment.methods.base import (
     ARTIFACT_WEIGHTS,
+    CostRates,
     Progress,
     StyleTransferMethod,
     TrainingSpec,
@@ -44,7 +45,7 @@ from motionaug.augment.methods.onthefly.finetuning import ContentPool, FitResult
 from motionaug.augment.methods.onthefly.model import OnTheFlyModel
 from motionaug.augment.methods.onthefly.pairs import make_pairs
 from motionaug.augment.methods.onthefly.params import METHOD_NAME, POOL_CLIPS, OnTheFlyParams, validate_params
-from motionaug.augment.outputs.checksums import RUN_FACTS
+from motionaug.augment.outputs.checksums import TIMINGS_FILE
 from motionaug.augment.training.base_models import BASE_JSON, BaseModels
 from motionaug.models.text_encoder import TextEncoder
 from motionaug.schemas.errors import MotionDataError, first_error
@@ -72,7 +73,12 @@ class OnTheFlyMethod(StyleTransferMethod):
     Params: ClassVar[type[BaseModel]] = OnTheFlyParams
     params: OnTheFlyParams
     trains: ClassVar[bool] = True
-    content_pool: ClassVar[int] = POOL_CLIPS
+    cost_rates: ClassVar[CostRates] = CostRates(prepare_s=25.0, transfer_clips_per_s=26.3, train_s=800.0)
+
+    def content_clips(self) -> int:
+        """The clips the semantic loss L_s draws from (paper sec. 3.4: "motions from the dataset")."""
+        return POOL_CLIPS
+
     smoke_params: ClassVar[dict[str, Any]] = {"max_steps": 2, "pair_steps": 10, "batch_size": 4}
 
     def __init__(
@@ -168,7 +174,7 @@ class OnTheFlyMethod(StyleTransferMethod):
         )
         write_artifact(out_dir, info, weights)
         facts = {**fit.timings, "curve_seconds": [point.get("seconds") for point in fit.curve]}
-        atomic_write_text(out_dir / RUN_FACTS, json.dumps(facts, indent=1, sort_keys=True) + "\n")
+        atomic_write_text(out_dir / TIMINGS_FILE, json.dumps(facts, indent=1, sort_keys=True) + "\n")
         return out_dir
 
     # ---- per worker: artefact -> loaded style ----------------------------------------------------------------

@@ -30,13 +30,14 @@ from motionaug.augment.diffusion import NoiseSchedule, ddim_sample
 from motionaug.augment.io import atomic_write_text
 from motionaug.augment.methods.base import (
     ARTIFACT_WEIGHTS,
+    CostRates,
     Progress,
     StyleModel,
     TrainingSpec,
     TransferOutput,
 )
 from motionaug.augment.methods.common import (
-    LabelledNetworkMethod,
+    CorpusTrainedMethod,
     MotionBatch,
     clip_noise,
     configure_threads,
@@ -70,7 +71,7 @@ from motionaug.augment.methods.umsd.training import (
 )
 from motionaug.augment.motion.batch import pad_batch
 from motionaug.augment.motion.features import feature_slices
-from motionaug.augment.outputs.checksums import RUN_FACTS
+from motionaug.augment.outputs.checksums import TIMINGS_FILE
 from motionaug.schemas.captions import Caption
 from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.skeleton import T2M
@@ -182,7 +183,7 @@ def trained_fingerprint(folder: Path) -> str:
     return files_fingerprint(folder, [META_FILE, WEIGHTS_FILE], "UMSD model file")
 
 
-class UmsdMethod(LabelledNetworkMethod):
+class UmsdMethod(CorpusTrainedMethod):
     """UMSD (Qian et al., ACM MM 2025) as a motionaug method."""
 
     name: ClassVar[str] = METHOD_NAME
@@ -198,9 +199,10 @@ class UmsdMethod(LabelledNetworkMethod):
         "shapers": ["moments"],  # the plan's pool reaches ``prepare``, the references the shaper
     }
 
-    @property
-    def content_pool(self) -> int:  # type: ignore[override]
-        """Content clips ``prepare`` sees: the output shapers' references are picked from them."""
+    cost_rates: ClassVar[CostRates] = CostRates(prepare_s=0.04, transfer_clips_per_s=0.67)
+
+    def content_clips(self) -> int:
+        """The clips the output shapers' references are picked from (none without such a shaper)."""
         return REFERENCE_POOL if self.params.needs_references else 0
 
     # ---- once per run: the network ----------------------------------------------------------------------
@@ -266,7 +268,7 @@ class UmsdMethod(LabelledNetworkMethod):
         )
         write_artifact(Path(out), info, weights)
         seconds = {"prepare_s": time.perf_counter() - start}
-        atomic_write_text(Path(out) / RUN_FACTS, json.dumps(seconds) + "\n")  # outside the artefact's checksum
+        atomic_write_text(Path(out) / TIMINGS_FILE, json.dumps(seconds) + "\n")  # outside the artefact's checksum
         return Path(out)
 
     def _checked_clip(self, clip: MotionClip, model: UmsdModel, source: str) -> np.ndarray:
