@@ -37,7 +37,6 @@ from motionaug.augment.methods.onthefly import (
 from motionaug.augment.motion.features import compute_mean_std
 from motionaug.augment.motion.foot_lock import lock_feet
 from motionaug.augment.motion.tempo import retime
-from motionaug.augment.outputs.checksums import TIMINGS_FILE
 from motionaug.augment.outputs.shards import TransferOutput
 from motionaug.augment.synth import STYLE_WORDS, sample_spec
 from motionaug.augment.synth.corpus import spec_to_clip
@@ -316,13 +315,14 @@ def test_lora_artifact_round_trip_gives_identical_transfers(
     params = parse_params(FAST, lambda_s=0.0, max_steps=4, lora_rank=2)
     method = OnTheFlyMethod(params, text_encoder=HashTextEncoder())
     model, fit, pool, skipped = method.fit(proud_spec(), [clips["proud_walk"]], base, corpus=[])
-    out_dir = method.save(tmp_path / "style=proud", base_dir, model, fit, pool, skipped)
+    prepared = method.save(tmp_path / "style=proud", base_dir, model, fit, pool, skipped)
+    out_dir = prepared.folder
     info = json.loads((out_dir / ARTIFACT_JSON).read_text())
     assert info["method"] == "onthefly" and info["weights"] == "lora"
     assert info["weights_bytes"] <= 0.05 * info["full_model_bytes"]
     assert (out_dir / ARTIFACT_WEIGHTS).stat().st_size <= 0.05 * info["full_model_bytes"] + 4096
     assert len(info["loss_curve"]) == 4 and "timings" not in info  # wall-clock facts stay out of the artefact
-    assert "finetune_s" in json.loads((out_dir / TIMINGS_FILE).read_text())
+    assert "finetune_s" in prepared.timings  # the contract's prepare writes them to TIMINGS_FILE
     loaded = method.load(out_dir, base_dir)
     content = [clips["walk"], clips["kick"]]
     before, after = model.transfer(content, seed=1), loaded.transfer(content, seed=1)
@@ -339,7 +339,7 @@ def test_lora_biases_are_trained_stored_and_reloaded(
     params = parse_params(FAST, lambda_s=0.0, max_steps=4, lora_rank=2, lora_biases=True)
     method = OnTheFlyMethod(params, text_encoder=HashTextEncoder())
     model, fit, pool, skipped = method.fit(proud_spec(), [clips["proud_walk"]], base, corpus=[])
-    out_dir = method.save(tmp_path / "style=proud", base_dir, model, fit, pool, skipped)
+    out_dir = method.save(tmp_path / "style=proud", base_dir, model, fit, pool, skipped).folder
     stored = load_file(str(out_dir / ARTIFACT_WEIGHTS))
     output_bias = "output_process.poseFinal.bias"
     assert output_bias in stored and "seqTransEncoder.layers.0.linear1.base.bias" in stored

@@ -7,7 +7,6 @@ present, ``$MOTIONAUG_DEVICE`` to choose); everything after runs where they are.
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -17,10 +16,10 @@ from pydantic import BaseModel, ValidationError
 
 from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.device import pick_device
-from motionaug.augment.io import atomic_write_text
 from motionaug.augment.methods.base import (
     ARTIFACT_WEIGHTS,
     CostRates,
+    Prepared,
     Progress,
     StyleTransferMethod,
     TrainingSpec,
@@ -45,7 +44,6 @@ from motionaug.augment.methods.onthefly.finetuning import ContentPool, FitResult
 from motionaug.augment.methods.onthefly.model import OnTheFlyModel
 from motionaug.augment.methods.onthefly.pairs import make_pairs
 from motionaug.augment.methods.onthefly.params import METHOD_NAME, POOL_CLIPS, OnTheFlyParams, validate_params
-from motionaug.augment.outputs.checksums import TIMINGS_FILE
 from motionaug.augment.training.base_models import BASE_JSON, BaseModels
 from motionaug.models.text_encoder import TextEncoder
 from motionaug.schemas.errors import MotionDataError, first_error
@@ -135,19 +133,18 @@ class OnTheFlyMethod(StyleTransferMethod):
         fit.tempo_note = fit_note
         return OnTheFlyModel(style, base, fit.model, params, tempo=tempo), fit, pool, skipped
 
-    def prepare(
+    def prepare_style(
         self,
         style: StyleSpec,
         examples: Sequence[MotionClip],
         trained: Path | None,
         content: Sequence[MotionClip],
         out: Path,
-        seed: int | None = None,
-        progress: Progress | None = None,
-    ) -> Path:
+        seed: int | None,
+        progress: Progress | None,
+    ) -> Prepared:
         """Pairs + fine-tuning from the base models in ``trained``; ``content`` is the semantic loss's pool."""
-        if trained is None:
-            raise MotionDataError(f"{METHOD_NAME} prepare", "needs base models (the train step's folder)")
+        assert trained is not None  # checked by ``prepare``
         configure_threads()
         base = place_models(BaseModels.load(trained, text_encoder=self.text_encoder), pick_device())
         model, fit, pool, skipped = self.fit(style, examples, base, content, seed, progress)
@@ -155,7 +152,7 @@ class OnTheFlyMethod(StyleTransferMethod):
 
     def save(
         self, out_dir: Path, base_dir: Path, model: OnTheFlyModel, fit: FitResult, pool: ContentPool, skipped: int
-    ) -> Path:
+    ) -> Prepared:
         """Write ``weights.safetensors`` (adapters only for LoRA) and ``artifact.json`` (written last)."""
         weights = weights_state(fit.model, model.params)
         info = OnTheFlyArtifact(
@@ -173,9 +170,7 @@ class OnTheFlyMethod(StyleTransferMethod):
             loss_curve=[{k: v for k, v in point.items() if k != "seconds"} for point in fit.curve],
         )
         write_artifact(out_dir, info, weights)
-        facts = {**fit.timings, "curve_seconds": [point.get("seconds") for point in fit.curve]}
-        atomic_write_text(out_dir / TIMINGS_FILE, json.dumps(facts, indent=1, sort_keys=True) + "\n")
-        return out_dir
+        return Prepared(out_dir, {**fit.timings, "curve_seconds": [point.get("seconds") for point in fit.curve]})
 
     # ---- per worker: artefact -> loaded style ----------------------------------------------------------------
 

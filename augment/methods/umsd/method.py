@@ -12,8 +12,6 @@ sampled in overlapping windows of that length, blended over the overlaps. Resear
 
 from __future__ import annotations
 
-import json
-import time
 import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -27,10 +25,10 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from motionaug.augment.corpus import MotionClip, Reject
 from motionaug.augment.corpus.style_examples import MIN_EXAMPLE_FRAMES, check_motion
 from motionaug.augment.diffusion import NoiseSchedule, ddim_sample
-from motionaug.augment.io import atomic_write_text
 from motionaug.augment.methods.base import (
     ARTIFACT_WEIGHTS,
     CostRates,
+    Prepared,
     Progress,
     StyleModel,
     TrainingSpec,
@@ -71,7 +69,6 @@ from motionaug.augment.methods.umsd.training import (
 )
 from motionaug.augment.motion.batch import pad_batch
 from motionaug.augment.motion.features import feature_slices
-from motionaug.augment.outputs.checksums import TIMINGS_FILE
 from motionaug.schemas.captions import Caption
 from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.skeleton import T2M
@@ -219,26 +216,22 @@ class UmsdMethod(CorpusTrainedMethod):
     def check_style(self, style: StyleSpec, trained: Path | None, corpus: Path | None = None) -> None:
         """Any style: UMSD takes the style from an example motion (zero-shot, sec. 4.4), not from a label."""
 
-    def prepare(
+    def prepare_style(
         self,
         style: StyleSpec,
         examples: Sequence[MotionClip],
         trained: Path | None,
         content: Sequence[MotionClip],
         out: Path,
-        seed: int | None = None,
-        progress: Progress | None = None,
-    ) -> Path:
+        seed: int | None,
+        progress: Progress | None,
+    ) -> Prepared:
         """No learning: validate the examples, normalise them for the trained network, store them.
 
         An example longer than the network's training crop (``train.max_frames``) is cut to its middle that many
         frames: style inputs were never longer in training.
         """
-        start = time.perf_counter()
-        if trained is None:
-            raise MotionDataError(f"{METHOD_NAME} prepare", "needs the trained network (the train step's folder)")
-        if not examples:
-            raise MotionDataError(f"style {style.name!r}", "no example clips")
+        assert trained is not None  # checked by ``prepare``
         model = load_umsd(trained)
         weights: dict[str, torch.Tensor] = {}
         motions: list[np.ndarray] = []
@@ -267,9 +260,7 @@ class UmsdMethod(CorpusTrainedMethod):
             weights_bytes=tensor_bytes(weights),
         )
         write_artifact(Path(out), info, weights)
-        seconds = {"prepare_s": time.perf_counter() - start}
-        atomic_write_text(Path(out) / TIMINGS_FILE, json.dumps(seconds) + "\n")  # outside the artefact's checksum
-        return Path(out)
+        return Prepared(Path(out))
 
     def _checked_clip(self, clip: MotionClip, model: UmsdModel, source: str) -> np.ndarray:
         """A clip's raw features, checked for the network (width, finite, length, fps)."""
