@@ -7,6 +7,7 @@ declares its own seconds-long ``smoke_params``.
 from __future__ import annotations
 
 import copy
+import inspect
 import json
 from pathlib import Path
 
@@ -53,6 +54,7 @@ def test_every_method_declares_the_contract() -> None:
         assert issubclass(cls, StyleTransferMethod) and cls.name == name
         assert cls.Params.model_config.get("extra") == "forbid", f"{name}: a typo in a config must be an error"
         cls.parse_params(cls.smoke_params)  # the smoke params are valid params
+        assert list(inspect.signature(cls.load).parameters) == ["self", "artifact", "trained"], name
         with pytest.raises(MotionDataError, match=r"config method\.params"):
             cls.parse_params({"no_such_parameter": 1})
 

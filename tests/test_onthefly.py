@@ -328,7 +328,7 @@ def test_lora_artifact_round_trip_gives_identical_transfers(
     before, after = model.transfer(content, seed=1), loaded.transfer(content, seed=1)
     for a, b in zip(before, after):
         np.testing.assert_array_equal(a.motion, b.motion)
-    merged = method.load(out_dir, base_dir, merge=True).transfer(content, seed=1)
+    merged = method.load_tuned(out_dir, base_dir, merge=True).transfer(content, seed=1)
     for a, b in zip(before, merged):
         np.testing.assert_allclose(a.motion, b.motion, atol=1e-3)
 
@@ -349,7 +349,7 @@ def test_lora_biases_are_trained_stored_and_reloaded(
     content = [clips["walk"], clips["kick"]]
     before = model.transfer(content, seed=1)
     for merge in (False, True):
-        after = method.load(out_dir, base_dir, merge=merge).transfer(content, seed=1)
+        after = method.load_tuned(out_dir, base_dir, merge=merge).transfer(content, seed=1)
         for a, b in zip(before, after):
             np.testing.assert_allclose(a.motion, b.motion, atol=1e-3)
     del stored[output_bias]
@@ -385,7 +385,7 @@ def test_full_finetune_artifact_and_base_mismatch(
     assert info["weights"] == "full" and info["weights_bytes"] == info["full_model_bytes"]
     (out,) = method.load(out_dir, base_dir).transfer([clips["walk"]])
     assert out.motion.shape == (FRAMES, 263)
-    (fast,) = method.load(out_dir, base_dir, bf16=True).transfer([clips["walk"]])  # bf16 autocast serving
+    (fast,) = method.load_tuned(out_dir, base_dir, bf16=True).transfer([clips["walk"]])  # bf16 autocast serving
     assert np.isfinite(fast.motion).all() and not np.array_equal(fast.motion, out.motion)
     np.testing.assert_array_equal(fast.motion[:, :3], clips["walk"].motion[:, :3])
     other = tmp_path / "other-base"

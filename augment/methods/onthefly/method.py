@@ -174,12 +174,14 @@ class OnTheFlyMethod(StyleTransferMethod):
 
     # ---- per worker: artefact -> loaded style ----------------------------------------------------------------
 
-    def load(self, artifact: Path, trained: Path | None, **options: Any) -> OnTheFlyModel:
-        """Options: ``merge`` (fold LoRA adapters into the weights; faster, not bit-identical), ``batch_size``,
-        ``bf16`` (override the artefact's autocast choice), ``text_encoder``."""
-        unknown = sorted(set(options) - {"merge", "batch_size", "bf16", "text_encoder"})
-        if unknown:
-            raise MotionDataError(f"{METHOD_NAME} load", f"unknown options {unknown}")
+    def load(self, artifact: Path, trained: Path | None) -> OnTheFlyModel:
+        return self.load_tuned(artifact, trained)
+
+    def load_tuned(
+        self, artifact: Path, trained: Path | None, *, merge: bool = False, bf16: bool | None = None
+    ) -> OnTheFlyModel:
+        """``load`` with serving choices: ``merge`` folds LoRA adapters into the weights (faster, not
+        bit-identical); ``bf16`` overrides the artefact's autocast choice (None: the artefact's)."""
         if trained is None:
             raise MotionDataError(f"{METHOD_NAME} load", "needs base models (the train step's folder)")
         artifact_dir, base_dir = Path(artifact), Path(trained)
@@ -190,10 +192,7 @@ class OnTheFlyMethod(StyleTransferMethod):
             raise MotionDataError(
                 str(artifact_dir), f"tuned from base models {info.base_fingerprint}, {base_dir} is {found}"
             )
-        base = BaseModels.load(base_dir, text_encoder=options.get("text_encoder", self.text_encoder))
-        base = place_models(base, pick_device())
-        model = rebuild_transfer_model(base, info, artifact_dir / ARTIFACT_WEIGHTS, bool(options.get("merge", False)))
-        params = (
-            info.params if "bf16" not in options else info.params.model_copy(update={"bf16": bool(options["bf16"])})
-        )
-        return OnTheFlyModel(info.style, base, model, params, options.get("batch_size"), tempo=info.tempo)
+        base = place_models(BaseModels.load(base_dir, text_encoder=self.text_encoder), pick_device())
+        model = rebuild_transfer_model(base, info, artifact_dir / ARTIFACT_WEIGHTS, merge)
+        params = info.params if bf16 is None else info.params.model_copy(update={"bf16": bf16})
+        return OnTheFlyModel(info.style, base, model, params, None, tempo=info.tempo)
