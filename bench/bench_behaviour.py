@@ -21,7 +21,15 @@ from pathlib import Path
 
 import yaml
 
-CONFIGS = ("umsd-synthetic", "bandai2-umsd", "bandai2-erd", "stats-synthetic", "bandai2-stats")
+CONFIGS = (
+    "umsd-synthetic",
+    "bandai2-umsd",
+    "bandai2-erd",
+    "stats-synthetic",
+    "bandai2-stats",
+    "bandai2-onthefly",
+    "onthefly-lora-synthetic",
+)
 STYLES = ("proud", "old")
 N_CLIPS = 40
 

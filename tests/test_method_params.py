@@ -53,3 +53,14 @@ def test_a_removed_setting_is_one_line_saying_what_to_do(name: str, params: dict
     with pytest.raises(MotionDataError, match=message) as err:
         method_class(name).parse_params(params)
     assert "\n" not in str(err.value)
+
+
+def test_on_the_fly_artefacts_made_before_a_setting_left_still_load() -> None:
+    from motionaug.augment.methods.onthefly.params import OnTheFlyParams
+
+    old = {**OnTheFlyParams().model_dump(), "pair_guidance_scale": 2.5, "neutralise_content": True}
+    assert OnTheFlyParams.model_validate(old) == OnTheFlyParams()
+    with pytest.raises(ValueError, match="neutralise_content was removed"):
+        OnTheFlyParams.model_validate({**old, "neutralise_content": False})
+    with pytest.raises(MotionDataError, match=r"method\.params\.pair_guidance_scale: onthefly: removed; fixed at 2\.5"):
+        method_class("onthefly").parse_params({"pair_guidance_scale": 2.5})

@@ -43,7 +43,13 @@ from motionaug.augment.methods.onthefly.artifact import (
 from motionaug.augment.methods.onthefly.finetuning import ContentPool, FitResult, finetune, make_pool, resolve_tempo
 from motionaug.augment.methods.onthefly.model import OnTheFlyModel
 from motionaug.augment.methods.onthefly.pairs import make_pairs
-from motionaug.augment.methods.onthefly.params import METHOD_NAME, POOL_CLIPS, OnTheFlyParams, validate_params
+from motionaug.augment.methods.onthefly.params import (
+    METHOD_NAME,
+    POOL_CLIPS,
+    REMOVED_HOW,
+    OnTheFlyParams,
+    validate_params,
+)
 from motionaug.augment.training.base_models import BASE_JSON, BaseModels
 from motionaug.models.text_encoder import TextEncoder
 from motionaug.schemas.errors import MotionDataError, first_error
@@ -78,6 +84,7 @@ class OnTheFlyMethod(StyleTransferMethod):
         return POOL_CLIPS
 
     smoke_params: ClassVar[dict[str, Any]] = {"max_steps": 2, "pair_steps": 10, "batch_size": 4}
+    removed_params: ClassVar[dict[str, str]] = REMOVED_HOW
 
     def __init__(
         self, params: OnTheFlyParams | dict[str, Any] | None = None, text_encoder: TextEncoder | None = None
