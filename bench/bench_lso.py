@@ -41,7 +41,8 @@ from motionaug.augment.eval.protocol import (
     take_of,
 )
 from motionaug.augment.io import atomic_save_npy, atomic_write_text
-from motionaug.augment.methods.umsd.method import nearest_root_motion, with_amplitude, with_posture
+from motionaug.augment.methods.hooks import ShapeContext, output_shapers
+from motionaug.augment.methods.umsd.method import nearest_root_motion
 from motionaug.augment.metrics import matched_fmd, mean_foot_skating
 from motionaug.augment.motion.features import Normalizer, features_to_joints
 from motionaug.augment.outputs.shards import iter_shard_rows, row_motion
@@ -125,18 +126,19 @@ def moment_row(args: argparse.Namespace, fold_corpus: Path, draws: ExampleDraws,
     norm = Normalizer(np.load(fold_corpus / "Mean.npy"), np.load(fold_corpus / "Std.npy"))
     plain = {c.id: c.motion for c in Corpus(fold_corpus, split="train") if c.style == NEUTRAL[args.kind]}
     originals = {c.id: c for c in Corpus(args.corpus, split="train")}
+    shaper = output_shapers.create("moments")
     out: Transfers = {}
     for style in styles:
         for draw in range(DRAWS):
             for k in args.k:
                 examples = [originals[i].motion for i in examples_of(draws, style, draw, k)]
-                example = torch.from_numpy(np.concatenate([norm.normalize(e) for e in examples]))
+                example = np.concatenate([norm.normalize(e) for e in examples])
                 references = [nearest_root_motion(e, plain)[1] for e in examples]
-                reference = torch.from_numpy(np.concatenate([norm.normalize(r) for r in references]))
+                reference = np.concatenate([norm.normalize(r) for r in references])
                 rows = []
                 for clip in blind(scored_clips(args.corpus, args.kind, args.split)):
                     c = norm.normalize(clip.motion)
-                    shaped = with_posture(with_amplitude(c, c, example, reference, 0.25), c, example, reference)
+                    shaped = shaper(c, ShapeContext(content=c, example=example, reference=reference, fps=clip.fps))
                     rows.append((clip.id, norm.denormalize(shaped)))
                 out[(style, draw, k)] = rows
     return out

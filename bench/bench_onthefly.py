@@ -43,7 +43,7 @@ from motionaug.augment.methods.onthefly import OnTheFlyMethod, OnTheFlyModel, lo
 from motionaug.augment.metrics import mpjpe, recognition_accuracy
 from motionaug.augment.motion.batch import pad_batch
 from motionaug.augment.motion.features import features_to_joints
-from motionaug.augment.outputs.checksums import RUN_FACTS
+from motionaug.augment.outputs.checksums import TIMINGS_FILE
 from motionaug.augment.outputs.shards import TransferOutput
 from motionaug.augment.training.base_models import BaseModels, BaseModelsInfo, config_dict
 from motionaug.augment.training.evaluators import evaluators_folder
@@ -227,7 +227,7 @@ def run_variant(
     artifact = method.prepare(spec, examples, base_dir, corpus, work / f"artifact-{name}")
     prepare_s = time.perf_counter() - start
     info = json.loads((artifact / "artifact.json").read_text())
-    timings = json.loads((artifact / RUN_FACTS).read_text())
+    timings = json.loads((artifact / TIMINGS_FILE).read_text())
     model: OnTheFlyModel = method.load(artifact, base_dir)
     judges = load_classifiers(base_dir) if evaluators_folder(base_dir) else None
     start = time.perf_counter()

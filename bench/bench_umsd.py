@@ -1,7 +1,7 @@
-"""UMSD: a fixed-step training run, transfer throughput (fp32 and bf16 autocast) and the cost of adding a style.
+"""UMSD: a fixed-step training run, transfer throughput and the cost of adding a style.
 
 Usage: python bench/bench_umsd.py [--corpus /tmp/umsd/synth] [--clips 400] [--preset default|large|tiny]
-       [--steps 2000] [--denoiser msm|transformer] [--hold-out old] [--transfer-clips 32] [--ddim-steps 50]
+       [--steps 2000] [--hold-out old] [--transfer-clips 32] [--ddim-steps 50]
        [--model-dir DIR] [--skip train,prepare,transfer] [--out bench_umsd.json] [--quick]
 
 (a) Training: ``UmsdMethod.train`` on the corpus's train split at ``--steps`` (a fixed count; no time cap), with
@@ -13,8 +13,7 @@ corpus and config is reused (then the training time is not measured again).
 gradient steps: validation, normalisation, writing the artefact; the network load and the fingerprint of its
 files are part of it).
 (c) Transfer: ``load`` + ``transfer`` of ``--transfer-clips`` neutral test clips to the held-out style, DDIM
-``--ddim-steps`` from pure noise, in batches of 16, after a warm-up call; clips/s in fp32 and under bf16 autocast
-(``cpu_bf16`` says whether the CPU has bf16 units; without them bf16 is emulated and slower).
+``--ddim-steps`` from pure noise, in batches of 16, after a warm-up call; clips/s in fp32.
 
 The machine's load average is recorded next to the figures: on a shared 2-core box the times mostly measure the
 scheduler. ``--quick``: a seconds-long smoke of every part (48 clips, 5 steps at the default preset, 10 DDIM steps).
@@ -43,12 +42,11 @@ from motionaug.augment.outputs.shards import TransferOutput
 from motionaug.augment.synth import STYLE_WORDS, generate_corpus
 from motionaug.schemas.styles import StyleSpec
 
-PRESETS: dict[str, dict[str, Any]] = {
-    "default": {},  # UmsdTrainConfig's defaults: d_model 64, 3 MSM blocks, batch 8 per term, 120-frame crops
-    "large": {"d_model": 128, "ff_size": 512, "d_state": 16, "batch_size": 16},
-    "tiny": {"d_model": 32, "n_heads": 2, "ff_size": 64, "msm_blocks": 1, "d_state": 4, "batch_size": 2,
-             "max_frames": 40},
-}  # fmt: skip
+PRESETS: dict[str, tuple[str, dict[str, Any]]] = {  # (network size, training settings)
+    "default": ("small", {}),  # d_model 64, 3 MSM blocks, batch 8 per term, 120-frame crops
+    "large": ("paper", {"batch_size": 16}),
+    "tiny": ("tiny", {"batch_size": 2, "max_frames": 40}),
+}
 
 
 def style_spec(name: str, examples: Sequence[MotionClip]) -> StyleSpec:
@@ -60,7 +58,7 @@ def style_spec(name: str, examples: Sequence[MotionClip]) -> StyleSpec:
     )
 
 
-def bench_training(method: UmsdMethod, corpus: Path, model_dir: Path) -> dict[str, Any]:
+def bench_training(method: UmsdMethod, corpus: Path, model_dir: Path, size: str) -> dict[str, Any]:
     last = {"t": time.perf_counter()}
     every = max(1, method.params.train.steps // 10)
 
@@ -73,7 +71,7 @@ def bench_training(method: UmsdMethod, corpus: Path, model_dir: Path) -> dict[st
     load_before = list(os.getloadavg())
     reused = method.is_trained(model_dir)
     start = time.perf_counter()
-    method.train(corpus, model_dir, TrainingSpec(size="bench", options={}, seed=0), progress)
+    method.train(corpus, model_dir, TrainingSpec(size=size, options={}, seed=0), progress)
     seconds = time.perf_counter() - start
     info = read_artifact(model_dir)
     return {
@@ -106,9 +104,9 @@ def bench_prepare(method: UmsdMethod, model_dir: Path, examples: list[MotionClip
 
 
 def bench_transfer(
-    params: dict[str, Any], model_dir: Path, artifact: Path, content: list[MotionClip], bf16: bool
+    params: dict[str, Any], model_dir: Path, artifact: Path, content: list[MotionClip]
 ) -> dict[str, Any]:
-    model = UmsdMethod({**params, "bf16": bf16}).load(artifact, model_dir)
+    model = UmsdMethod(params).load(artifact, model_dir)
     model.transfer(content[:2], seed=0)  # warm-up
     start = time.perf_counter()
     outputs = model.transfer(content, seed=0)
@@ -158,7 +156,7 @@ def markdown(result: dict[str, Any]) -> str:
             "| precision | clips | frames | seconds | clips/s | load average |",
             "|---|---:|---:|---:|---:|---:|",
         ]
-        for name in ("fp32", "bf16"):
+        for name in ("fp32",):
             if name in tf:
                 r = tf[name]
                 lines.append(
@@ -174,13 +172,12 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--clips", type=int, default=400, help="clips of a generated corpus")
     parser.add_argument("--preset", choices=sorted(PRESETS), default="default")
     parser.add_argument("--steps", type=int, default=2000)
-    parser.add_argument("--denoiser", choices=["msm", "transformer"], default="msm")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--hold-out", default="old", help="style excluded from training and prepared zero-shot")
     parser.add_argument("--transfer-clips", type=int, default=32)
     parser.add_argument("--ddim-steps", type=int, default=50)
     parser.add_argument("--model-dir", type=Path, default=None)
-    parser.add_argument("--skip", default="", help="comma list of: train, prepare, transfer, bf16")
+    parser.add_argument("--skip", default="", help="comma list of: train, prepare, transfer")
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--quick", action="store_true")
     args = parser.parse_args(argv)
@@ -194,7 +191,8 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         print(f"generating a {args.clips}-clip synthetic corpus in {args.corpus}", flush=True)
         generate_corpus(args.corpus, args.clips, seed=0)
     model_dir = args.model_dir or work / "trained"
-    train = {**PRESETS[args.preset], "steps": args.steps, "denoiser": args.denoiser, "threads": args.threads}
+    size, preset = PRESETS[args.preset]
+    train = {**preset, "steps": args.steps}
     train |= {"exclude_styles": [args.hold_out], "log_every": max(1, args.steps // 20)}
     params = {"train": train, "ddim_steps": args.ddim_steps, "batch_size": 16}
     method = UmsdMethod(params)
@@ -207,10 +205,8 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         "preset": args.preset,
     }
     if "train" not in skip:
-        print(
-            f"training {args.steps} steps ({args.preset}, {args.denoiser}) on {args.corpus} -> {model_dir}", flush=True
-        )
-        result["train"] = bench_training(method, args.corpus, model_dir)
+        print(f"training {args.steps} steps ({args.preset}) on {args.corpus} -> {model_dir}", flush=True)
+        result["train"] = bench_training(method, args.corpus, model_dir, size)
     elif not method.is_trained(model_dir):
         raise SystemExit(f"--skip train needs a trained --model-dir, {model_dir} has none")
     everything = list(Corpus(args.corpus))
@@ -226,9 +222,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         content = neutral[: args.transfer_clips]
         artifact = method.prepare(style_spec(args.hold_out, examples[:1]), examples[:1], model_dir, [], work / "style")
         result["transfer"] = {"ddim_steps": args.ddim_steps, "batch_size": 16}
-        for name, bf16 in (("fp32", False), ("bf16", True)):
-            if name not in skip:
-                result["transfer"][name] = bench_transfer(params, model_dir, artifact, content, bf16)
+        result["transfer"]["fp32"] = bench_transfer(params, model_dir, artifact, content)
     print(markdown(result))
     if args.out:
         args.out.write_text(json.dumps(result, indent=1), encoding="utf-8")

@@ -53,7 +53,7 @@ from motionaug.augment.eval.evaluation import Classifiers, classify, load_classi
 from motionaug.augment.methods.onthefly import POOL_CLIPS, OnTheFlyMethod, parse_params
 from motionaug.augment.metrics import wilson_interval
 from motionaug.augment.motion.features import features_to_joints
-from motionaug.augment.outputs.checksums import RUN_FACTS
+from motionaug.augment.outputs.checksums import TIMINGS_FILE
 from motionaug.augment.outputs.shards import TransferOutput
 from motionaug.augment.training.data import read_clips, split_ids
 from motionaug.schemas.run_config import load_run_config
@@ -191,7 +191,7 @@ def stylize(
                 again = [(i, saved[f"v{n}"]) for n, i in enumerate(facts.get("variant_ids") or [])]
             return outs, again if transfer_params is not None else None, facts
     artifact = method.prepare(spec, examples, prior_base, pool, folder / "artifact")
-    timings = json.loads((artifact / RUN_FACTS).read_text())
+    timings = json.loads((artifact / TIMINGS_FILE).read_text())
     info = json.loads((artifact / "artifact.json").read_text())
     model = method.load(artifact, prior_base)
     start = time.perf_counter()

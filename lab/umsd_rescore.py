@@ -26,21 +26,29 @@ from typing import Any
 
 import numpy as np
 import torch
+from umsd_hooks import SpectralCeiling, signal_channels  # noqa: E402
 from umsd_quality import by_style, load_clips, score, splits  # noqa: E402
 
 from motionaug.augment.corpus import MotionClip  # noqa: E402
 from motionaug.augment.methods.common import trajectory_channels  # noqa: E402
+from motionaug.augment.methods.hooks import ShapeContext  # noqa: E402
+from motionaug.augment.methods.shapers import with_amplitude, with_posture  # noqa: E402
 from motionaug.augment.methods.umsd import load_umsd  # noqa: E402
-from motionaug.augment.methods.umsd.method import (  # noqa: E402
-    UmsdMethod,
-    UmsdParams,
-    nearest_root_motion,
-    shaped,
-    smoothed,
-)
+from motionaug.augment.methods.umsd.method import UmsdMethod, nearest_root_motion  # noqa: E402
+from motionaug.augment.motion.kinematics import gaussian_smooth_time  # noqa: E402
 from motionaug.augment.outputs.shards import TransferOutput  # noqa: E402
 
 Variant = tuple[float, float, float, str, str]
+
+
+def smoothed(motion: np.ndarray, sigma: float) -> np.ndarray:
+    """Raw features (T, F) with every channel but the foot contacts Gaussian-filtered over time."""
+    if sigma <= 0:
+        return motion
+    signal = signal_channels(motion.shape[1])
+    out = motion.copy()
+    out[:, signal] = gaussian_smooth_time(torch.from_numpy(motion[:, signal]), sigma, time_dim=0).numpy()
+    return out
 
 
 def parse_variant(text: str) -> Variant:
@@ -58,13 +66,17 @@ def cleaned(
     """``motion`` (raw features) as ``UmsdStyleModel._transfer_batch`` would leave it under ``variant``; ``pair``:
     the stored style example and its reference."""
     slack, from_hz, smooth, posture, amplitude = variant
-    params = UmsdParams(ceiling_slack=slack, ceiling_from_hz=from_hz, posture=posture, amplitude=amplitude)
-    if params.needs_references and pair[1] is None:
+    if "example" in (posture, amplitude) and pair[1] is None:
         raise SystemExit("the run picked no references: rescore posture or amplitude: example on a run that did")
     norm = model.normalizer
     out = norm.normalize(np.asarray(motion, dtype=np.float32)).astype(np.float32)
     content = norm.normalize(source.motion).astype(np.float32)
-    out = shaped(out, content, pair[0], pair[1], model.info.fps, params)
+    example, reference = pair[0].numpy(), None if pair[1] is None else pair[1].numpy()
+    if amplitude == "example":
+        out = with_amplitude(out, content, example, reference, 0.25)
+    if posture == "example":
+        out = with_posture(out, content, example, reference)
+    out = SpectralCeiling(slack, from_hz)(out, ShapeContext(content, example, reference, model.info.fps))
     return smoothed(norm.denormalize(out).astype(np.float32), smooth)
 
 

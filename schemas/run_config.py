@@ -204,11 +204,22 @@ class ComputeConfig(_Strict):
     )
 
 
+class HooksConfig(_Strict):
+    """Modules outside the package that register hooks (``augment.methods.hooks``) the method params name."""
+
+    modules: list[str] = Field(
+        default_factory=list,
+        description="Importable module names (e.g. lab.umsd_hooks), imported by the driver and every Ray worker "
+        "before the method is built; a module must import from the run's working directory or be installed.",
+    )
+
+
 class RunConfig(_Strict):
     version: Literal[1] = RUN_CONFIG_VERSION
     corpus: CorpusConfig
     styles: list[StyleSpec] = Field(min_length=1)
     method: MethodConfig = Field(default_factory=MethodConfig)
+    hooks: HooksConfig = Field(default_factory=HooksConfig)
     fan_out: FanOutConfig = Field(default_factory=FanOutConfig)
     base_models: BaseModelsConfig = Field(default_factory=BaseModelsConfig)
     compute: ComputeConfig = Field(default_factory=ComputeConfig)
@@ -254,6 +265,8 @@ class RunConfig(_Strict):
         if keep["corpus"]["max_clip_frames"] is None:
             del keep["corpus"]["max_clip_frames"]  # the default: run ids of configs that never set it stay as they were
         keep["corpus"]["content"] = self.corpus_fingerprint()
+        if self.hooks.modules:  # what registers the hooks the method names
+            keep["hooks"] = list(self.hooks.modules)
         digest = hashlib.sha256(json.dumps(keep, sort_keys=True).encode()).hexdigest()
         return f"run-{digest[:12]}"
 

@@ -11,7 +11,7 @@ import torch
 
 from motionaug.augment.corpus import Corpus
 from motionaug.augment.eval.judges import JUDGES, fit_judges, judge_input, load_judges, motion_channels
-from motionaug.augment.methods.umsd.method import with_amplitude, with_posture
+from motionaug.augment.methods.hooks import ShapeContext, output_shapers
 from motionaug.augment.motion.batch import pad_batch
 from motionaug.augment.motion.features import Normalizer
 from motionaug.augment.synth import generate_corpus
@@ -29,14 +29,10 @@ def corpus(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def moment_rule(content: np.ndarray, example: np.ndarray, reference: np.ndarray, norm: Normalizer) -> np.ndarray:
-    """Posture and amplitude from an example against its plain reference, applied to the content clip itself."""
+    """The shipped ``moments`` shaper (posture and amplitude from an example against its plain reference) on the
+    content clip itself."""
     c, e, r = (norm.normalize(x) for x in (content, example, reference))
-    shaped = with_posture(
-        with_amplitude(c, c, torch.from_numpy(e), torch.from_numpy(r), 0.25),
-        c,
-        torch.from_numpy(e),
-        torch.from_numpy(r),
-    )
+    shaped = output_shapers.create("moments")(c, ShapeContext(content=c, example=e, reference=r, fps=20.0))
     return norm.denormalize(shaped)
 
 

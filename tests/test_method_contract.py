@@ -7,6 +7,8 @@ declares its own seconds-long ``smoke_params``.
 from __future__ import annotations
 
 import copy
+import inspect
+import json
 from pathlib import Path
 
 import pyarrow.parquet as pq
@@ -16,6 +18,7 @@ from conftest import TWO_STYLES
 from motionaug.augment.corpus import Corpus
 from motionaug.augment.methods.base import ARTIFACT_JSON, StyleTransferMethod
 from motionaug.augment.methods.registry import known_methods, method_class
+from motionaug.augment.outputs.checksums import TIMINGS_FILE, sha256_tree
 from motionaug.augment.outputs.run_dir import RunDir
 from motionaug.augment.synth import generate_corpus
 from motionaug.schemas.errors import MotionDataError
@@ -51,6 +54,7 @@ def test_every_method_declares_the_contract() -> None:
         assert issubclass(cls, StyleTransferMethod) and cls.name == name
         assert cls.Params.model_config.get("extra") == "forbid", f"{name}: a typo in a config must be an error"
         cls.parse_params(cls.smoke_params)  # the smoke params are valid params
+        assert list(inspect.signature(cls.load).parameters) == ["self", "artifact", "trained"], name
         with pytest.raises(MotionDataError, match=r"config method\.params"):
             cls.parse_params({"no_such_parameter": 1})
 
@@ -90,3 +94,21 @@ def test_method_runs_train_prepare_transfer_on_ray(name: str, corpus: Path, tmp_
 def test_an_unknown_parameter_is_one_config_line(name: str, corpus: Path, tmp_path: Path) -> None:
     with pytest.raises(MotionDataError, match=rf"config method\.params\.colour: {name}"):
         check_config(config_for(name, corpus, tmp_path / "run", colour=1))
+
+
+@pytest.mark.parametrize("name", known_methods())
+def test_prepare_checks_its_arguments_once_for_every_method(name: str, corpus: Path, tmp_path: Path) -> None:
+    from motionaug.schemas.styles import StyleSpec
+
+    method = method_class(name)(method_class(name).smoke_params)
+    style = StyleSpec.model_validate(TWO_STYLES[0])
+    example = next(c for c in Corpus(corpus) if c.style == "proud")
+    with pytest.raises(MotionDataError, match="style 'proud': no example clips"):
+        method.prepare(style, [], tmp_path, [], tmp_path / "none")
+    if method.trains:
+        with pytest.raises(MotionDataError, match=rf"{name} prepare: needs the trained models"):
+            method.prepare(style, [example], None, [], tmp_path / "untrained")
+    else:  # the template records the seconds beside the artefact, outside its checksum
+        folder = method.prepare(style, [example], None, [], tmp_path / "style")
+        assert json.loads((folder / TIMINGS_FILE).read_text())["prepare_s"] >= 0
+        assert sha256_tree(folder)[1] == len([p for p in folder.rglob("*") if p.is_file()]) - 1

@@ -37,7 +37,6 @@ from motionaug.augment.methods.onthefly import (
 from motionaug.augment.motion.features import compute_mean_std
 from motionaug.augment.motion.foot_lock import lock_feet
 from motionaug.augment.motion.tempo import retime
-from motionaug.augment.outputs.checksums import RUN_FACTS
 from motionaug.augment.outputs.shards import TransferOutput
 from motionaug.augment.synth import STYLE_WORDS, sample_spec
 from motionaug.augment.synth.corpus import spec_to_clip
@@ -316,19 +315,20 @@ def test_lora_artifact_round_trip_gives_identical_transfers(
     params = parse_params(FAST, lambda_s=0.0, max_steps=4, lora_rank=2)
     method = OnTheFlyMethod(params, text_encoder=HashTextEncoder())
     model, fit, pool, skipped = method.fit(proud_spec(), [clips["proud_walk"]], base, corpus=[])
-    out_dir = method.save(tmp_path / "style=proud", base_dir, model, fit, pool, skipped)
+    prepared = method.save(tmp_path / "style=proud", base_dir, model, fit, pool, skipped)
+    out_dir = prepared.folder
     info = json.loads((out_dir / ARTIFACT_JSON).read_text())
     assert info["method"] == "onthefly" and info["weights"] == "lora"
     assert info["weights_bytes"] <= 0.05 * info["full_model_bytes"]
     assert (out_dir / ARTIFACT_WEIGHTS).stat().st_size <= 0.05 * info["full_model_bytes"] + 4096
     assert len(info["loss_curve"]) == 4 and "timings" not in info  # wall-clock facts stay out of the artefact
-    assert "finetune_s" in json.loads((out_dir / RUN_FACTS).read_text())
+    assert "finetune_s" in prepared.timings  # the contract's prepare writes them to TIMINGS_FILE
     loaded = method.load(out_dir, base_dir)
     content = [clips["walk"], clips["kick"]]
     before, after = model.transfer(content, seed=1), loaded.transfer(content, seed=1)
     for a, b in zip(before, after):
         np.testing.assert_array_equal(a.motion, b.motion)
-    merged = method.load(out_dir, base_dir, merge=True).transfer(content, seed=1)
+    merged = method.load_tuned(out_dir, base_dir, merge=True).transfer(content, seed=1)
     for a, b in zip(before, merged):
         np.testing.assert_allclose(a.motion, b.motion, atol=1e-3)
 
@@ -339,7 +339,7 @@ def test_lora_biases_are_trained_stored_and_reloaded(
     params = parse_params(FAST, lambda_s=0.0, max_steps=4, lora_rank=2, lora_biases=True)
     method = OnTheFlyMethod(params, text_encoder=HashTextEncoder())
     model, fit, pool, skipped = method.fit(proud_spec(), [clips["proud_walk"]], base, corpus=[])
-    out_dir = method.save(tmp_path / "style=proud", base_dir, model, fit, pool, skipped)
+    out_dir = method.save(tmp_path / "style=proud", base_dir, model, fit, pool, skipped).folder
     stored = load_file(str(out_dir / ARTIFACT_WEIGHTS))
     output_bias = "output_process.poseFinal.bias"
     assert output_bias in stored and "seqTransEncoder.layers.0.linear1.base.bias" in stored
@@ -349,7 +349,7 @@ def test_lora_biases_are_trained_stored_and_reloaded(
     content = [clips["walk"], clips["kick"]]
     before = model.transfer(content, seed=1)
     for merge in (False, True):
-        after = method.load(out_dir, base_dir, merge=merge).transfer(content, seed=1)
+        after = method.load_tuned(out_dir, base_dir, merge=merge).transfer(content, seed=1)
         for a, b in zip(before, after):
             np.testing.assert_allclose(a.motion, b.motion, atol=1e-3)
     del stored[output_bias]
@@ -385,7 +385,7 @@ def test_full_finetune_artifact_and_base_mismatch(
     assert info["weights"] == "full" and info["weights_bytes"] == info["full_model_bytes"]
     (out,) = method.load(out_dir, base_dir).transfer([clips["walk"]])
     assert out.motion.shape == (FRAMES, 263)
-    (fast,) = method.load(out_dir, base_dir, bf16=True).transfer([clips["walk"]])  # bf16 autocast serving
+    (fast,) = method.load_tuned(out_dir, base_dir, bf16=True).transfer([clips["walk"]])  # bf16 autocast serving
     assert np.isfinite(fast.motion).all() and not np.array_equal(fast.motion, out.motion)
     np.testing.assert_array_equal(fast.motion[:, :3], clips["walk"].motion[:, :3])
     other = tmp_path / "other-base"

@@ -3,7 +3,7 @@
 One on-the-fly run (tiny base models trained in the run, the method's smoke params) made twice into two
 folders on a real local Ray (num_cpus=2); every file that is part of what the run made is compared by sha256.
 Left out are the files that record wall-clock facts about how it was made: ``timings.json`` of an artefact
-(``checksums.RUN_FACTS``, outside its checksum), the training loss log and the training checkpoints (resume
+(``checksums.TIMINGS_FILE``, outside its checksum), the training loss log and the training checkpoints (resume
 state with elapsed seconds), the ``.done`` markers (they record each task's seconds; the checksums in them are
 compared instead) and the run-level records (config, manifest), which name the run folder.
 See docs/reproducibility.md.
@@ -18,12 +18,12 @@ import pytest
 from conftest import TWO_STYLES
 
 from motionaug.augment.methods.registry import method_class
-from motionaug.augment.outputs.checksums import RUN_FACTS, sha256_file
+from motionaug.augment.outputs.checksums import TIMINGS_FILE, sha256_file
 from motionaug.augment.synth import generate_corpus
 from motionaug.schemas.run_config import load_run_config
 
 N_CLIPS = 40
-WALL_CLOCK_FILES = {RUN_FACTS, "loss_log.jsonl"}
+WALL_CLOCK_FILES = {TIMINGS_FILE, "loss_log.jsonl"}
 RUN_RECORDS = {"config.resolved.json", "manifest.json"}
 
 
@@ -84,7 +84,7 @@ def test_markers_record_the_same_checksums(two_runs: tuple[Path, Path]) -> None:
     from motionaug.augment.outputs.run_dir import RunDir
 
     first, second = (RunDir(run) for run in two_runs)
-    assert (first.artifact_dir("proud") / RUN_FACTS).is_file()
+    assert (first.artifact_dir("proud") / TIMINGS_FILE).is_file()
     for style in ("proud", "old"):
         a, b = first.artifact(style), second.artifact(style)
         assert a is not None and b is not None

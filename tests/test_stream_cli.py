@@ -12,7 +12,7 @@ from motionaug.augment.corpus import Corpus
 from motionaug.augment.methods.erd.method import ErdMethod
 from motionaug.augment.methods.erd.stream import StreamingStylizer, transfer
 from motionaug.augment.methods.erd.stream_files import read_frames, stylize_stream
-from motionaug.augment.methods.erd.training import ErdTrainConfig, load_erd, train_erd
+from motionaug.augment.methods.erd.training import ErdTrain, load_erd, train_erd
 from motionaug.augment.motion.bvh import read_bvh
 from motionaug.augment.synth import generate_corpus
 from motionaug.workflows.cli import app
@@ -24,7 +24,7 @@ WALK = Path(__file__).resolve().parent / "fixtures" / "bvh" / "dataset-1" / "dat
 def model(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("stream")
     generate_corpus(root / "corpus", 24, seed=0)
-    config = ErdTrainConfig(**ErdMethod.smoke_params["train"])
+    config = ErdTrain(**ErdMethod.smoke_params["train"]).recipe("tiny")
     return train_erd(list(Corpus(root / "corpus")), root / "erd", config)
 
 

@@ -269,7 +269,7 @@ def test_the_learning_pool_does_not_depend_on_the_unit_size(corpus: Path, tmp_pa
         data = {**config_dict(corpus, tmp_path / f"u{size}", unit_size=size), "method": {"name": "onthefly"}}
         plans.append(PlanStage(load_run_config(None, data=data), method).run("plan"))
     assert [len(u.ids) for u in plans[0].units] != [len(u.ids) for u in plans[1].units]
-    assert plans[0].pool == plans[1].pool and len(plans[0].pool) == min(method.content_pool, plans[0].n_clips)
+    assert plans[0].pool == plans[1].pool and len(plans[0].pool) == min(method.content_clips(), plans[0].n_clips)
     assert set(plans[0].pool) <= {i for u in plans[0].units for i in u.ids}
 
 
@@ -292,6 +292,6 @@ def test_a_pool_split_keeps_the_methods_learning_clips_out_of_the_scored_ones(co
     scored = {i for u in plan.units for i in u.ids}
     assert plan.pool and not set(plan.pool) & scored
     assert all(i in train and train[i].style == "neutral" for i in plan.pool)
-    assert len(plan.pool) == min(method.content_pool, sum(c.style == "neutral" for c in train.values()))
+    assert len(plan.pool) == min(method.content_clips(), sum(c.style == "neutral" for c in train.values()))
     again = PlanStage(load_run_config(None, data=data), method).run("plan")
     assert again.pool == plan.pool  # seeded

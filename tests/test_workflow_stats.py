@@ -92,12 +92,12 @@ def test_registry_validates_params_and_names_methods() -> None:
 
 def test_an_artefact_checksum_ignores_its_wall_clock_facts(tmp_path: Path) -> None:
     """Two artefacts that differ only in how long they took to make have the same checksum (shards cite it)."""
-    from motionaug.augment.outputs.checksums import RUN_FACTS, sha256_tree
+    from motionaug.augment.outputs.checksums import TIMINGS_FILE, sha256_tree
 
     for name, seconds in (("a", 1.5), ("b", 99.0)):
         (tmp_path / name).mkdir()
         (tmp_path / name / "weights.bin").write_bytes(b"same")
-        (tmp_path / name / RUN_FACTS).write_text(f'{{"finetune_s": {seconds}}}')
+        (tmp_path / name / TIMINGS_FILE).write_text(f'{{"finetune_s": {seconds}}}')
     assert sha256_tree(tmp_path / "a") == sha256_tree(tmp_path / "b") == sha256_tree(tmp_path / "a")
     (tmp_path / "b" / "weights.bin").write_bytes(b"other")
     assert sha256_tree(tmp_path / "a") != sha256_tree(tmp_path / "b")

@@ -532,7 +532,7 @@ def submit_command(
         dashboard_url(address)
         cfg = _load_config(config, overrides or [], None, out)
         if cluster_paths:
-            validate_method_params(cfg.method.name, cfg.method.params)
+            validate_method_params(cfg.method.name, cfg.method.params, cfg.hooks.modules)
         else:
             preflight(cfg, local=False)
     job = run_safely(lambda: submit_run(cfg, address, retry=retry, name=config.stem))

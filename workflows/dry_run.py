@@ -1,7 +1,7 @@
 """``motionaug run --dry-run``: the run's plan and what it will cost, before Ray starts or anything is written.
 
 The corpus is read exactly as the plan stage reads it (same filters, same seeded units), so the task counts are
-the run's own; seconds and bytes are estimates from the benchmarks' rates in ``RATES``. Nothing is written into
+the run's own; seconds and bytes are estimates from the method's measured ``cost_rates``. Nothing is written into
 the run folder: a dry run is safe beside a running or finished run.
 """
 
@@ -22,26 +22,6 @@ from motionaug.schemas.shards import Plan
 from motionaug.workflows.pipeline import PlanStage, check_config, keep_clip, over_limit, trained_dir
 from motionaug.workflows.progress_log import format_seconds
 
-
-@dataclass(frozen=True)
-class Rate:
-    """One method's measured costs on the project VM (1 CPU per task, CPU torch)."""
-
-    prepare_s: float | None  # one style's prepare task
-    transfer_clips_per_s: float | None  # one transfer task
-    train_s: float | None = None  # the once-per-run training, when the method trains
-    artefact_bytes: int | None = None  # one style's published artefact; None: not measured
-
-
-# Each method's costs as its benchmarks took them on the project's 2-core VM (one CPU per task): prepare is one
-# style's prepare task, transfer one task's throughput, train the once-per-run training. onthefly: the `small` prior;
-# erd: its stream step times the frames of a typical clip. Update a rate when the method's cost changes.
-RATES: dict[str, Rate] = {
-    "stats": Rate(prepare_s=0.02, transfer_clips_per_s=380.0, artefact_bytes=8_000),
-    "onthefly": Rate(prepare_s=25.0, transfer_clips_per_s=26.3, train_s=800.0),
-    "erd": Rate(prepare_s=None, transfer_clips_per_s=19.0, train_s=733.0),
-    "umsd": Rate(prepare_s=0.04, transfer_clips_per_s=0.67),
-}
 # Shard bytes per output frame (Parquet + zstd, 263-dim float32 rows with captions and scores): zstd does better the
 # more rows a shard holds, so the size is a log-linear fit to stats shards of a few sizes.
 SHARD_BYTES_PER_FRAME = (1240.0, -220.0)  # a + b * log10(rows), kept within [700, 1100]
@@ -108,9 +88,9 @@ def free_space(path: Path) -> tuple[Path, int]:
 
 
 def plan_run(config: RunConfig) -> DryRun:
-    """Plan the run as the plan stage would, and estimate each stage from ``RATES``; writes nothing."""
+    """Plan the run as the plan stage would, and estimate each stage from the method's rates; writes nothing."""
     method = check_config(config)
-    rate = RATES.get(config.method.name, Rate(None, None))
+    rate = method.cost_rates
     started = time.perf_counter()
     corpus = Corpus(config.corpus.path, split=config.corpus.split)
     file_splits = corpus.file_splits()
@@ -202,5 +182,5 @@ def dry_run_report(d: DryRun) -> list[Table | str]:
     verdict = "enough" if d.disk_ok else "[red]NOT enough[/red]"
     what = "shards, plan" if d.artefacts_measured else "shards, plan; style artefacts not measured for this method"
     lines.append(f"disk: needs {_size(d.disk_bytes)} ({what}); {_size(d.free_bytes)} free at {d.disk_at}: {verdict}")
-    lines.append(f"estimated time {_time(d.seconds)} (rates of bench/RESULTS.md on a 2-core VM), output {d.output}")
+    lines.append(f"estimated time {_time(d.seconds)} (the method's measured rates, 2 cores), output {d.output}")
     return lines

@@ -146,7 +146,7 @@ def run_pipeline(config: RunConfig, backend: Backend, progress: RunProgress | No
     from motionaug.augment.methods.registry import create_method
 
     progress = progress or NullProgress()
-    method = create_method(config.method.name, config.method.params)
+    method = create_method(config.method.name, config.method.params, config.hooks.modules)
     first = run_stages([PlanStage(config, method)], backend, progress)
     plan: Plan = first.results["plan"]["plan"]
     timings = dict(first.timings)

@@ -120,7 +120,7 @@ def check_config(config: RunConfig) -> StyleTransferMethod:
             if source.suffix.lower() in (".npy", ".bvh") and not source.is_file():
                 where = f"config styles[{i}].examples[{j}].source"
                 raise MotionDataError(where, f"style example file {source} not found")
-    method = create_method(config.method.name, config.method.params)
+    method = create_method(config.method.name, config.method.params, config.hooks.modules)
     trained = None
     if method.trains:
         method.check_training(training_spec(config))
@@ -252,7 +252,7 @@ class PlanStage(Stage):
 
     def __init__(self, config: RunConfig, method: StyleTransferMethod) -> None:
         super().__init__(config)
-        self.pool_size = method.content_pool
+        self.pool_size = method.content_clips()
 
     def keys(self) -> list[Hashable]:
         return ["plan"]
@@ -415,9 +415,9 @@ class PrepareStage(Stage):
     def run(self, key: Hashable, dependency: Any = None) -> ArtifactMarker:
         start = time.perf_counter()
         style_name = str(key)
-        method = create_method(self.config.method.name, self.config.method.params)
+        method = create_method(self.config.method.name, self.config.method.params, self.config.hooks.modules)
         content: list[MotionClip] = []
-        if method.content_pool and self.plan.pool:
+        if method.content_clips() and self.plan.pool:
             content = Corpus(self.config.corpus.path).load(self.plan.pool, self.plan.pool_files)[0]
         style = next(s for s in self.config.styles if s.name == style_name)
         examples = load_examples(style, self.config)
@@ -490,7 +490,7 @@ class TransferStage(Stage):
         artifact: ArtifactMarker = dependency
         style, unit = key.style, self.units[key.unit]  # type: ignore[attr-defined]
         start = time.perf_counter()
-        method = create_method(self.config.method.name, self.config.method.params)
+        method = create_method(self.config.method.name, self.config.method.params, self.config.hooks.modules)
         model = method.load(self.run_dir.root / artifact.path / artifact.entry, self.trained)
         load_seconds = time.perf_counter() - start
         clips, rejects = Corpus(self.config.corpus.path).load(unit.styles[style], unit.files)

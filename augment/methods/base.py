@@ -7,9 +7,9 @@ Every method declares the same steps on ``StyleTransferMethod``; the workflow as
   (on-the-fly: the T2M prior and motion encoder; Style-ERD and UMSD: their network), reused by later runs
   when ``is_trained`` says the folder already holds them;
 - ``check_style``: a config-time check of one style against what the method can do;
-- ``prepare``: once per style, an artefact folder (``artifact.json`` + files) from the style's examples
-  (on-the-fly: a fine-tuned prior; stats: the example statistics; methods without per-style learning keep the
-  default, which records the style);
+- ``prepare``: once per style, an artefact folder (``artifact.json`` + files) from the style's examples; a
+  template that checks its arguments and records its seconds, around the method's ``prepare_style`` (on-the-fly:
+  a fine-tuned prior; stats: the example statistics; without per-style learning the default records the style);
 - ``load`` + ``StyleModel.transfer``: a worker loads an artefact once and stylizes batches of clips.
 
 Artefacts are plain files so the workflow can move them between machines.
@@ -18,9 +18,10 @@ Artefacts are plain files so the workflow can move them between machines.
 from __future__ import annotations
 
 import json
+import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, Protocol
 
@@ -29,6 +30,7 @@ from pydantic import BaseModel, ValidationError
 from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.corpus.rejects import Reject
 from motionaug.augment.io import atomic_write_text
+from motionaug.augment.outputs.checksums import TIMINGS_FILE
 from motionaug.augment.outputs.shards import TransferOutput
 from motionaug.schemas.errors import MotionDataError, first_error
 from motionaug.schemas.styles import StyleSpec
@@ -41,6 +43,24 @@ Progress = Callable[[int, int, dict[str, float]], None]
 
 TrainProgress = Callable[[str, int, int, dict[str, float]], None]
 """``progress(stage, step, total, metrics)``: the same for a training with several stages."""
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """What ``prepare_style`` made: the artefact folder and, optionally, timings of its parts (seconds)."""
+
+    folder: Path
+    timings: Mapping[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class CostRates:
+    """A method's measured costs on the project VM (1 CPU per task, CPU torch), for ``motionaug run --dry-run``."""
+
+    prepare_s: float | None = None  # one style's prepare task; None: not measured
+    transfer_clips_per_s: float | None = None  # one transfer task
+    train_s: float | None = None  # the once-per-run training, when the method trains
+    artefact_bytes: int | None = None  # one style's published artefact
 
 
 @dataclass(frozen=True)
@@ -69,10 +89,12 @@ class StyleTransferMethod(ABC):
     Params: ClassVar[type[BaseModel]]
     trains: ClassVar[bool] = False
     """Whether the method has a once-per-run ``train`` step."""
-    content_pool: ClassVar[int] = 0
-    """How many content clips ``prepare`` learns from (0: none). The plan chooses them, whatever the unit size."""
+    cost_rates: ClassVar[CostRates] = CostRates()
+    """Measured costs per task, the dry run's estimates (``CostRates``)."""
     smoke_params: ClassVar[dict[str, Any]] = {}
     """Params for a seconds-long run of every step (the contract test, ``motionaug demo --size tiny``)."""
+    removed_params: ClassVar[Mapping[str, str]] = {}
+    """Settings that left ``Params`` (dotted for nested ones, ``train.w_acc``) and what to do instead."""
 
     def __init__(self, params: Mapping[str, Any] | BaseModel | None = None) -> None:
         self.params = self.parse_params(params)
@@ -83,11 +105,25 @@ class StyleTransferMethod(ABC):
         if isinstance(raw, cls.Params):
             return raw
         data = raw.model_dump() if isinstance(raw, BaseModel) else dict(raw or {})
+        for dotted, what in cls.removed_params.items():
+            *parents, leaf = dotted.split(".")
+            level: Any = data
+            for part in parents:
+                level = level.get(part) if isinstance(level, Mapping) else None
+            if isinstance(level, Mapping) and leaf in level:
+                raise MotionDataError(f"config method.params.{dotted}", f"{cls.name}: removed; {what}")
         try:
             return cls.Params.model_validate(data)
         except ValidationError as err:
             where, message = first_error(err, "")
             raise MotionDataError(f"config method.params.{where}".rstrip("."), f"{cls.name}: {message}") from None
+
+    def content_clips(self) -> int:
+        """How many content clips of the plan's pool ``prepare`` is handed (0: none), as these params need them.
+
+        The plan chooses them once per run, whatever the unit size; every style's ``prepare`` sees the same ones.
+        """
+        return 0
 
     # ---- once per run ---------------------------------------------------------------------------------
 
@@ -120,15 +156,35 @@ class StyleTransferMethod(ABC):
     ) -> Path:
         """Learn ``style`` from its examples (and ``content``, the plan's pool); write the artefact under ``out``.
 
-        ``seed`` None: the method's params' own. The default records the style only, for methods that condition
-        on it at transfer time.
+        A template: the checks every method shares, then ``prepare_style``; the seconds it took, with any timings
+        the method reports, go to ``TIMINGS_FILE`` in the artefact folder, outside its checksum.
         """
+        if self.trains and trained is None:
+            raise MotionDataError(f"{self.name} prepare", "needs the trained models (the train step's folder)")
         if not examples:
             raise MotionDataError(f"style {style.name!r}", "no example clips")
+        start = time.perf_counter()
+        prepared = self.prepare_style(style, examples, trained, content, Path(out), seed, progress)
+        timings = {"prepare_s": time.perf_counter() - start, **prepared.timings}
+        atomic_write_text(prepared.folder / TIMINGS_FILE, json.dumps(timings, indent=1, sort_keys=True) + "\n")
+        return prepared.folder
+
+    def prepare_style(
+        self,
+        style: StyleSpec,
+        examples: Sequence[MotionClip],
+        trained: Path | None,
+        content: Sequence[MotionClip],
+        out: Path,
+        seed: int | None,
+        progress: Progress | None,
+    ) -> Prepared:
+        """``prepare``'s own work, its arguments checked. ``seed`` None: the method's params' own. The default
+        records the style only, for methods that condition on it at transfer time."""
         out.mkdir(parents=True, exist_ok=True)
         record = {"method": self.name, "style": style.model_dump(mode="json"), "examples": [c.id for c in examples]}
         atomic_write_text(out / ARTIFACT_JSON, json.dumps(record, indent=1, sort_keys=True) + "\n")
-        return out
+        return Prepared(out)
 
     @abstractmethod
     def load(self, artifact: Path, trained: Path | None) -> StyleModel:

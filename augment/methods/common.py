@@ -411,7 +411,7 @@ def write_model_folder(out: Path, tensors: dict[str, dict[str, Tensor]], texts: 
     return out
 
 
-class LabelledNetworkMethod(StyleTransferMethod):
+class CorpusTrainedMethod(StyleTransferMethod):
     """A method whose network is trained once per run on a labelled style corpus (Style-ERD, UMSD).
 
     ``train`` fits ``fit_network`` on the corpus's train split (its neutral style renamed ``neutral``) and reuses a
@@ -420,9 +420,17 @@ class LabelledNetworkMethod(StyleTransferMethod):
 
     trains: ClassVar[bool] = True
 
+    def training_config(self, spec: TrainingSpec) -> BaseModel:
+        """The full training config ``fit_network`` reads and the trained folder records (default ``params.train``)."""
+        params: Any = self.params
+        return params.train
+
+    def check_training(self, spec: TrainingSpec) -> None:
+        self.training_config(spec)
+
     @abstractmethod
-    def fit_network(self, clips: list[MotionClip], out: Path, progress: Progress | None) -> Path:
-        """Train the network on labelled clips into the folder ``out``."""
+    def fit_network(self, clips: list[MotionClip], out: Path, config: Any, progress: Progress | None) -> Path:
+        """Train the network on labelled clips into the folder ``out`` with ``config`` (``training_config``)."""
 
     def is_trained(self, folder: Path) -> bool:
         return (Path(folder) / TRAINED_JSON).is_file()
@@ -430,12 +438,13 @@ class LabelledNetworkMethod(StyleTransferMethod):
     def train(self, corpus: Path, out: Path, spec: TrainingSpec, progress: TrainProgress | None = None) -> Path:
         """Fit on the labelled corpus's train split; a folder made from the same corpus and config is reused."""
         params: Any = self.params
-        record = training_record(corpus, params.train, params.neutral_style)
+        config = self.training_config(spec)
+        record = training_record(corpus, config, params.neutral_style)
         if trained_with(out, record):
             return Path(out)
         clips = labelled_training_clips(corpus, params.neutral_style)
         report = None if progress is None else (lambda step, total, metrics: progress(self.name, step, total, metrics))
-        self.fit_network(clips, Path(out), report)
+        self.fit_network(clips, Path(out), config, report)
         mark_trained(out, record)
         return Path(out)
 

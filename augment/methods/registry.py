@@ -6,10 +6,12 @@ Everything else about a method is declared on its class (``motionaug.augment.met
 from __future__ import annotations
 
 import importlib
+from collections.abc import Sequence
 from types import MappingProxyType
 from typing import Any
 
 from motionaug.augment.methods.base import StyleTransferMethod
+from motionaug.augment.methods.hooks import import_hook_modules
 from motionaug.schemas.errors import MotionDataError
 
 METHODS = MappingProxyType(
@@ -34,11 +36,14 @@ def method_class(name: str) -> type[StyleTransferMethod]:
     return vars(importlib.import_module(module_name))[class_name]
 
 
-def validate_method_params(name: str, params: dict[str, Any]) -> dict[str, Any]:
-    """The method's params, validated and normalised (one line naming ``method.params`` when bad)."""
+def validate_method_params(name: str, params: dict[str, Any], hook_modules: Sequence[str] = ()) -> dict[str, Any]:
+    """The method's params, validated and normalised (one line naming ``method.params`` when bad); the hooks they
+    name are looked up after ``hook_modules`` (a run config's ``hooks.modules``) are imported."""
+    import_hook_modules(hook_modules)
     return method_class(name).parse_params(params).model_dump(mode="json")
 
 
-def create_method(name: str, params: dict[str, Any]) -> StyleTransferMethod:
-    """An instance configured with validated params."""
+def create_method(name: str, params: dict[str, Any], hook_modules: Sequence[str] = ()) -> StyleTransferMethod:
+    """An instance configured with validated params, after importing the modules that register its hooks."""
+    import_hook_modules(hook_modules)
     return method_class(name)(params)

@@ -25,6 +25,8 @@ from motionaug.augment.corpus.rejects import Reject
 from motionaug.augment.methods.base import (
     ARTIFACT_JSON,
     ARTIFACT_WEIGHTS,
+    CostRates,
+    Prepared,
     Progress,
     StyleTransferMethod,
     TransferOutput,
@@ -115,20 +117,19 @@ class StatsBaselineMethod(StyleTransferMethod):
     name: ClassVar[str] = "stats"
     Params: ClassVar[type[BaseModel]] = StatsParams
     params: StatsParams
+    cost_rates: ClassVar[CostRates] = CostRates(prepare_s=0.02, transfer_clips_per_s=380.0, artefact_bytes=8_000)
 
-    def prepare(
+    def prepare_style(
         self,
         style: StyleSpec,
         examples: Sequence[MotionClip],
         trained: Path | None,
         content: Sequence[MotionClip],
         out: Path,
-        seed: int | None = None,
-        progress: Progress | None = None,
-    ) -> Path:
+        seed: int | None,
+        progress: Progress | None,
+    ) -> Prepared:
         motions = [check_clip(clip) for clip in examples]
-        if not motions:
-            raise MotionDataError(f"style {style.name!r}", "no example clips")
         pose = np.concatenate(motions)[:, pose_channels()].astype(np.float64)
         out_dir = Path(out)
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -149,7 +150,7 @@ class StatsBaselineMethod(StyleTransferMethod):
         (out_dir / ARTIFACT_JSON).write_text(json.dumps(meta, indent=1, sort_keys=True) + "\n", encoding="utf-8")
         if progress is not None:
             progress(1, 1, {})
-        return out_dir
+        return Prepared(out_dir)
 
     def load(self, artifact: Path, trained: Path | None = None) -> StatsStyleModel:
         folder = Path(artifact)

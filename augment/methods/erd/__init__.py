@@ -15,6 +15,7 @@ from motionaug.augment.methods.erd.stream import (
 )
 from motionaug.augment.methods.erd.training import (
     ErdArtifact,
+    ErdTrain,
     ErdTrainConfig,
     ErdTrainer,
     load_erd,
@@ -26,6 +27,7 @@ from motionaug.augment.methods.erd.training import (
 __all__ = [
     "FORWARD_CHANNELS",
     "ErdArtifact",
+    "ErdTrain",
     "ErdTrainConfig",
     "ErdTrainer",
     "StreamingStylizer",

@@ -21,17 +21,19 @@ from motionaug.augment.corpus import MotionClip, Reject
 from motionaug.augment.corpus.humanml3d import read_labels
 from motionaug.augment.methods.base import (
     ARTIFACT_JSON,
+    CostRates,
     Progress,
     StyleModel,
+    TrainingSpec,
     TransferOutput,
 )
 from motionaug.augment.methods.common import (
-    LabelledNetworkMethod,
+    CorpusTrainedMethod,
     revised_texts,
     style_vocab,
 )
 from motionaug.augment.methods.erd.stream import transfer
-from motionaug.augment.methods.erd.training import ErdTrainConfig, load_erd, read_artifact, train_erd
+from motionaug.augment.methods.erd.training import ErdTrain, ErdTrainConfig, load_erd, read_artifact, train_erd
 from motionaug.models.style_erd import NEUTRAL, ErdNetwork
 from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.styles import StyleSpec
@@ -39,43 +41,47 @@ from motionaug.schemas.styles import StyleSpec
 METHOD_NAME = "erd"
 
 
+NETWORK = "the network's size is the run's base_models.size (tiny, small, paper); drop the setting"
+FIXED = "fixed at its default; the lab sets it on ErdTrainConfig (lab/README.md); drop the setting"
+REMOVED_TRAIN = {
+    **{f"train.{n}": NETWORK for n in ("latent", "enc_hidden", "neutral_layers", "style_layers", "dec_hidden")},
+    **{f"train.{n}": NETWORK for n in ("disc_channels", "cls_channels", "classifier_steps", "classifier_batch_size")},
+    **{f"train.{n}": FIXED for n in ("disc_stride_s", "lr_classifier", "w_style", "w_moments", "neutral_share")},
+    **{f"train.{n}": FIXED for n in ("content_dropout", "residual_output", "threads")},
+    "train.seed": "the run's seed trains the network; drop the setting",
+    "seed": "Style-ERD's transfer draws no noise; drop the setting",
+}
+
+
 class ErdParams(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
-    train: ErdTrainConfig = Field(default_factory=ErdTrainConfig)
+    train: ErdTrain = Field(default_factory=ErdTrain)
     neutral_style: str = Field("neutral", description="The labelled corpus's name for neutral (Bandai: normal).")
     intensity: float = Field(1.0, ge=0.0, le=1.0, description="Style intensity a (sec. 4.4): z' = r_0 + a r_S.")
     caption_variants: int = Field(1, ge=1, description="Revised captions per output clip.")
-    seed: int = 0
 
 
-class ErdMethod(LabelledNetworkMethod):
+class ErdMethod(CorpusTrainedMethod):
     """Style-ERD (Tao et al., CVPR 2022) as a motionaug method."""
 
     name: ClassVar[str] = METHOD_NAME
     Params: ClassVar[type[BaseModel]] = ErdParams
+    cost_rates: ClassVar[CostRates] = CostRates(transfer_clips_per_s=19.0, train_s=733.0)
     params: ErdParams
     smoke_params: ClassVar[dict[str, Any]] = {
-        "train": {
-            "steps": 3,
-            "classifier_steps": 2,
-            "batch_size": 4,
-            "classifier_batch_size": 4,
-            "window_s": 0.8,
-            "latent": 8,
-            "enc_hidden": 16,
-            "neutral_layers": 2,
-            "style_layers": 1,
-            "dec_hidden": (16, 16, 16),
-            "disc_channels": (8, 8),
-            "cls_channels": (8, 8),
-        }
+        "train": {"steps": 3, "batch_size": 4, "window_s": 0.8}  # with base_models.size tiny
     }
+    removed_params: ClassVar[dict[str, str]] = REMOVED_TRAIN
+
+    def training_config(self, spec: TrainingSpec) -> ErdTrainConfig:
+        """``train`` with the network of the run's ``base_models.size`` and the run's seed."""
+        return self.params.train.recipe(spec.size, spec.seed)
 
     # ---- once per run: the network ----------------------------------------------------------------------
 
-    def fit_network(self, clips: list[MotionClip], out: Path, progress: Progress | None) -> Path:
-        return train_erd(clips, out, self.params.train, progress)
+    def fit_network(self, clips: list[MotionClip], out: Path, config: Any, progress: Progress | None) -> Path:
+        return train_erd(clips, out, config, progress)
 
     # ---- once per style ---------------------------------------------------------------------------------
 

@@ -148,6 +148,52 @@ class ErdTrainConfig(BaseModel):
         return window, min(disc, window), max(1, round(self.disc_stride_s * fps))
 
 
+ERD_SIZES: dict[str, dict[str, Any]] = {
+    "tiny": {  # seconds-long smoke runs: a small network and a short content-classifier stage
+        "latent": 8,
+        "enc_hidden": 16,
+        "neutral_layers": 2,
+        "style_layers": 1,
+        "dec_hidden": (16, 16, 16),
+        "disc_channels": (8, 8),
+        "cls_channels": (8, 8),
+        "classifier_steps": 2,
+        "classifier_batch_size": 4,
+    },
+    "small": {},  # the defaults of ``ErdTrainConfig``
+    "paper": {},  # the paper's widths are the defaults
+}
+
+
+class ErdTrain(BaseModel):
+    """What a run config sets of Style-ERD's training (``method.params.train``): the schedule, the windows, the
+    paper's optimiser rates and loss weights (Eqs. 8-9, supp. A) and its Table 1 ablations. The network's size is
+    the run's ``base_models.size`` and its seed the run's (``recipe``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    steps: int = Field(3000, ge=1, description="generator/critic steps (fixed count; there is no time cap)")
+    batch_size: int = Field(32, ge=2, description="real windows per step (supp. A: 16)")
+    window_s: float = Field(1.6, gt=0, description="generator training window, seconds (32 frames at 20 fps)")
+    disc_window_s: float = Field(0.4, gt=0, description="FT-Att window: the paper's 24 frames at 60 fps = 0.4 s")
+    lr_generator: float = Field(3e-3, gt=0, description="Adam; supp. A: 1e-4")
+    lr_discriminator: float = Field(5e-4, gt=0, description="Adam; supp. A: 5e-5")
+    w_adv: float = Field(0.1, ge=0, description="Eq. 8 (paper: 1)")
+    w_per: float = Field(1.0, ge=0, description="Eq. 8 (paper: 0.1)")
+    w_gp: float = Field(0.5, ge=0, description="Eq. 9, per-sample mean |grad D|^2 (the paper's 128 / 16^2)")
+    attention: bool = Field(True, description="FT-Att discriminator; False: Table 1's multi-class baseline")
+    learned_init: bool = Field(True, description="learned initial states; False: zeros (Table 1 ablation)")
+    log_every: int = Field(50, ge=1, description="history interval, steps")
+
+    def recipe(self, size: str = "small", seed: int = 0) -> ErdTrainConfig:
+        """The full training config: these settings, the network of ``size`` (``ERD_SIZES``) and ``seed``."""
+        if size not in ERD_SIZES:
+            known = list(ERD_SIZES)
+            where = "config base_models.size"
+            raise MotionDataError(where, f"Style-ERD has no network size {size!r}; known: {known}")
+        return ErdTrainConfig(**self.model_dump(), **ERD_SIZES[size], seed=seed)
+
+
 class ErdArtifact(BaseModel):
     """``erd.json``: everything but the weights."""
 

@@ -7,7 +7,6 @@ present, ``$MOTIONAUG_DEVICE`` to choose); everything after runs where they are.
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -17,9 +16,10 @@ from pydantic import BaseModel, ValidationError
 
 from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.device import pick_device
-from motionaug.augment.io import atomic_write_text
 from motionaug.augment.methods.base import (
     ARTIFACT_WEIGHTS,
+    CostRates,
+    Prepared,
     Progress,
     StyleTransferMethod,
     TrainingSpec,
@@ -43,8 +43,13 @@ from motionaug.augment.methods.onthefly.artifact import (
 from motionaug.augment.methods.onthefly.finetuning import ContentPool, FitResult, finetune, make_pool, resolve_tempo
 from motionaug.augment.methods.onthefly.model import OnTheFlyModel
 from motionaug.augment.methods.onthefly.pairs import make_pairs
-from motionaug.augment.methods.onthefly.params import METHOD_NAME, POOL_CLIPS, OnTheFlyParams, validate_params
-from motionaug.augment.outputs.checksums import RUN_FACTS
+from motionaug.augment.methods.onthefly.params import (
+    METHOD_NAME,
+    POOL_CLIPS,
+    REMOVED_HOW,
+    OnTheFlyParams,
+    validate_params,
+)
 from motionaug.augment.training.base_models import BASE_JSON, BaseModels
 from motionaug.models.text_encoder import TextEncoder
 from motionaug.schemas.errors import MotionDataError, first_error
@@ -72,8 +77,14 @@ class OnTheFlyMethod(StyleTransferMethod):
     Params: ClassVar[type[BaseModel]] = OnTheFlyParams
     params: OnTheFlyParams
     trains: ClassVar[bool] = True
-    content_pool: ClassVar[int] = POOL_CLIPS
+    cost_rates: ClassVar[CostRates] = CostRates(prepare_s=25.0, transfer_clips_per_s=26.3, train_s=800.0)
+
+    def content_clips(self) -> int:
+        """The clips the semantic loss L_s draws from (paper sec. 3.4: "motions from the dataset")."""
+        return POOL_CLIPS
+
     smoke_params: ClassVar[dict[str, Any]] = {"max_steps": 2, "pair_steps": 10, "batch_size": 4}
+    removed_params: ClassVar[dict[str, str]] = REMOVED_HOW
 
     def __init__(
         self, params: OnTheFlyParams | dict[str, Any] | None = None, text_encoder: TextEncoder | None = None
@@ -129,19 +140,18 @@ class OnTheFlyMethod(StyleTransferMethod):
         fit.tempo_note = fit_note
         return OnTheFlyModel(style, base, fit.model, params, tempo=tempo), fit, pool, skipped
 
-    def prepare(
+    def prepare_style(
         self,
         style: StyleSpec,
         examples: Sequence[MotionClip],
         trained: Path | None,
         content: Sequence[MotionClip],
         out: Path,
-        seed: int | None = None,
-        progress: Progress | None = None,
-    ) -> Path:
+        seed: int | None,
+        progress: Progress | None,
+    ) -> Prepared:
         """Pairs + fine-tuning from the base models in ``trained``; ``content`` is the semantic loss's pool."""
-        if trained is None:
-            raise MotionDataError(f"{METHOD_NAME} prepare", "needs base models (the train step's folder)")
+        assert trained is not None  # checked by ``prepare``
         configure_threads()
         base = place_models(BaseModels.load(trained, text_encoder=self.text_encoder), pick_device())
         model, fit, pool, skipped = self.fit(style, examples, base, content, seed, progress)
@@ -149,7 +159,7 @@ class OnTheFlyMethod(StyleTransferMethod):
 
     def save(
         self, out_dir: Path, base_dir: Path, model: OnTheFlyModel, fit: FitResult, pool: ContentPool, skipped: int
-    ) -> Path:
+    ) -> Prepared:
         """Write ``weights.safetensors`` (adapters only for LoRA) and ``artifact.json`` (written last)."""
         weights = weights_state(fit.model, model.params)
         info = OnTheFlyArtifact(
@@ -167,18 +177,18 @@ class OnTheFlyMethod(StyleTransferMethod):
             loss_curve=[{k: v for k, v in point.items() if k != "seconds"} for point in fit.curve],
         )
         write_artifact(out_dir, info, weights)
-        facts = {**fit.timings, "curve_seconds": [point.get("seconds") for point in fit.curve]}
-        atomic_write_text(out_dir / RUN_FACTS, json.dumps(facts, indent=1, sort_keys=True) + "\n")
-        return out_dir
+        return Prepared(out_dir, {**fit.timings, "curve_seconds": [point.get("seconds") for point in fit.curve]})
 
     # ---- per worker: artefact -> loaded style ----------------------------------------------------------------
 
-    def load(self, artifact: Path, trained: Path | None, **options: Any) -> OnTheFlyModel:
-        """Options: ``merge`` (fold LoRA adapters into the weights; faster, not bit-identical), ``batch_size``,
-        ``bf16`` (override the artefact's autocast choice), ``text_encoder``."""
-        unknown = sorted(set(options) - {"merge", "batch_size", "bf16", "text_encoder"})
-        if unknown:
-            raise MotionDataError(f"{METHOD_NAME} load", f"unknown options {unknown}")
+    def load(self, artifact: Path, trained: Path | None) -> OnTheFlyModel:
+        return self.load_tuned(artifact, trained)
+
+    def load_tuned(
+        self, artifact: Path, trained: Path | None, *, merge: bool = False, bf16: bool | None = None
+    ) -> OnTheFlyModel:
+        """``load`` with serving choices: ``merge`` folds LoRA adapters into the weights (faster, not
+        bit-identical); ``bf16`` overrides the artefact's autocast choice (None: the artefact's)."""
         if trained is None:
             raise MotionDataError(f"{METHOD_NAME} load", "needs base models (the train step's folder)")
         artifact_dir, base_dir = Path(artifact), Path(trained)
@@ -189,10 +199,7 @@ class OnTheFlyMethod(StyleTransferMethod):
             raise MotionDataError(
                 str(artifact_dir), f"tuned from base models {info.base_fingerprint}, {base_dir} is {found}"
             )
-        base = BaseModels.load(base_dir, text_encoder=options.get("text_encoder", self.text_encoder))
-        base = place_models(base, pick_device())
-        model = rebuild_transfer_model(base, info, artifact_dir / ARTIFACT_WEIGHTS, bool(options.get("merge", False)))
-        params = (
-            info.params if "bf16" not in options else info.params.model_copy(update={"bf16": bool(options["bf16"])})
-        )
-        return OnTheFlyModel(info.style, base, model, params, options.get("batch_size"), tempo=info.tempo)
+        base = place_models(BaseModels.load(base_dir, text_encoder=self.text_encoder), pick_device())
+        model = rebuild_transfer_model(base, info, artifact_dir / ARTIFACT_WEIGHTS, merge)
+        params = info.params if bf16 is None else info.params.model_copy(update={"bf16": bf16})
+        return OnTheFlyModel(info.style, base, model, params, None, tempo=info.tempo)

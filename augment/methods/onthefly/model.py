@@ -97,7 +97,7 @@ class OnTheFlyModel:
         captions = retime_captions(captions, self.tempo, motion.shape[0] / clip.fps)
         if not captions:
             raise MotionDataError(source, f"no caption segment left after retiming to tempo {self.tempo:.3f}")
-        styled = self.params.neutralise_content and carries_style(caption_text(clip), self.vocab)
+        styled = carries_style(caption_text(clip), self.vocab)
         return _Job(index, clip, motion, captions, styled)
 
     def transfer(self, clips: Sequence[MotionClip], seed: int = 0) -> list[TransferOutput | Reject]:
@@ -127,16 +127,13 @@ class OnTheFlyModel:
 
     def _denoiser(self, jobs: Sequence[_Job], cond: Tensor, mask: Tensor) -> DenoiseFn:
         """The tuned model on the revised captions; with ``style_guidance`` w, contrasted with the base prior on
-        the neutral (or the same revised) captions: w > 1 extrapolates the style the fine-tune added."""
+        the content's neutral captions: w > 1 extrapolates the style the fine-tune added."""
         tuned = bind_model(self.model, cond, mask)
         w = self.params.style_guidance
         if w is None or w == 1.0:
             return tuned
-        if self.params.style_guidance_reference == "revised":
-            reference_cond = cond
-        else:
-            neutral = [neutral_text(caption_text(j.clip), self.vocab) for j in jobs]
-            reference_cond = self.base.text_encoder.encode(neutral).to(self.device)
+        neutral = [neutral_text(caption_text(j.clip), self.vocab) for j in jobs]
+        reference_cond = self.base.text_encoder.encode(neutral).to(self.device)
         return contrast_guided(tuned, bind_model(self.base.prior, reference_cond, mask), w)
 
     def _transfer_batch(self, jobs: Sequence[_Job], seed: int) -> list[TransferOutput]:
@@ -153,7 +150,7 @@ class OnTheFlyModel:
                 x_start=content.x,
                 noise=noise,
                 inpaint=content.inpaint(kept_channels(self.params)),
-                guidance_scale=self.params.transfer_guidance_scale,
+                guidance_scale=None,
                 device=self.device,
             ).float()
         scores = self._scores(out, content.mask, cond, jobs)

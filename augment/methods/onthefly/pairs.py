@@ -26,7 +26,7 @@ from motionaug.augment.methods.common import (
     neutral_text,
     trajectory_channels,
 )
-from motionaug.augment.methods.onthefly.params import OnTheFlyParams
+from motionaug.augment.methods.onthefly.params import PAIR_GUIDANCE_SCALE, OnTheFlyParams
 from motionaug.augment.training.base_models import BaseModels
 
 
@@ -55,7 +55,7 @@ def neutral_twins(
             start_step=start,
             x_start=batch.x,
             inpaint=batch.inpaint(kept_channels(params)),
-            guidance_scale=params.pair_guidance_scale,
+            guidance_scale=PAIR_GUIDANCE_SCALE,
             generator=generator,
             device=device,
         )

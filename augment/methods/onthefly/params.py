@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from motionaug.augment.diffusion.schedule import NUM_TRAIN_TIMESTEPS
 from motionaug.augment.motion.tempo import TEMPO_RANGE
@@ -17,6 +17,17 @@ POOL_CLIPS = 256
 """Content clips the semantic loss draws from (paper sec. 3.4: "motions from the dataset"), chosen by the plan."""
 
 
+PAIR_GUIDANCE_SCALE = 2.5
+"""Classifier-free guidance of the neutral twin (pair generation)."""
+REMOVED = {  # settings that left the params, with the default every artefact made before holds
+    "pair_guidance_scale": 2.5,
+    "transfer_guidance_scale": None,
+    "style_guidance_reference": "neutral",
+    "neutralise_content": True,
+}
+REMOVED_HOW = {name: f"fixed at {default!r} (set by no config); drop the setting" for name, default in REMOVED.items()}
+
+
 class OnTheFlyParams(BaseModel):
     """Every knob of the method; ``extra="forbid"`` so a typo in a config is an error, not a default."""
 
@@ -27,17 +38,10 @@ class OnTheFlyParams(BaseModel):
     pair_steps: int = Field(
         100, description="DDPM steps of pair generation (respaced; 1000 = unspaced as the paper, ~10x slower on CPU)."
     )
-    pair_guidance_scale: float | None = Field(2.5, description="Classifier-free guidance of the neutral twin.")
     transfer_noise_step: int = Field(
         300, description="K: training timestep content is noised to (fine-tune and transfer)."
     )
     ddim_steps: int = Field(20, description="S: DDIM steps of the whole process (K=300 of 1000 runs 6 of 20).")
-    transfer_guidance_scale: float | None = None
-    style_guidance_reference: Literal["neutral", "revised"] = Field(
-        "neutral",
-        description="The base prior's caption in style_guidance: the content's neutral caption (the contrast holds "
-        "the fine-tune and the caption's style words) or the same revised caption (the fine-tune alone).",
-    )
     style_guidance: float | None = Field(
         None,
         description="w: transfer with x0 = x0_base + w (x0_tuned - x0_base), the base prior on the content's neutral "
@@ -92,9 +96,6 @@ class OnTheFlyParams(BaseModel):
         description="Neutral corpus clips (captions nearest the examples' neutral descriptions) giving the neutral "
         "cycle.",
     )
-    neutralise_content: bool = Field(
-        True, description="Transfer: neutralise content clips whose captions name a style."
-    )
     styled_corpus: Literal["skip", "neutralise"] = Field(
         "skip",
         description="L_s pool: drop corpus clips whose captions name a style, or neutralise them (slow: DDPM from G).",
@@ -104,6 +105,17 @@ class OnTheFlyParams(BaseModel):
         None, description="bf16 autocast; None = on CUDA (tensor cores) and on CPUs with bf16 units, else fp32."
     )
     seed: int = 0
+
+    @model_validator(mode="before")
+    @classmethod
+    def _older_artefacts(cls, data: Any) -> Any:
+        """An artefact made before a setting left holds it at its default: dropped; any other value is an error."""
+        if isinstance(data, dict) and any(name in data for name in REMOVED):
+            data = dict(data)
+            for name, default in REMOVED.items():
+                if name in data and data.pop(name) != default:
+                    raise ValueError(f"{name} was removed: {REMOVED_HOW[name]}")
+        return data
 
 
 def _fail(field: str, reason: str) -> MotionDataError:

@@ -22,9 +22,7 @@ the integrated root), in metres: L1 on positions, L1 on joint velocities (m/s), 
 speed (m/s) on the frames where the target's foot-contact channels say the foot is planted. ``w_spec`` (not in
 the paper) adds an L1 between the amplitude spectra over time of the facing-frame joints: a style's rhythm (sway,
 bob, step-rate swings) costs its amplitude when missing whatever its phase, where the L1 on values is lowest for
-no rhythm at all when the phase is uncertain. ``w_acc`` (not in the paper) adds an L1 on joint accelerations, so
-x0 predictions that are right on average but shake from frame to frame pay for the shake. Every term applies to
-every row against the row's own target.
+no rhythm at all when the phase is uncertain. Every term applies to every row against the row's own target.
 
 The diffusion reconstruction terms use L1 (Eqs. 10-11); the network predicts x0 (sec. 3.4, Ramesh et al.), or
 with ``skip`` x0's residual to the linear estimate of x0 from x_t (``augment.diffusion.skip_x0``), which a network
@@ -35,7 +33,12 @@ the content through its token mixers (not in the paper). The linear estimate's p
 so at every noise level it passes into x0 a share of x_t's frame-to-frame noise that the network must cancel;
 ``skip_time: spectral`` gives it a stationary prior over time instead (a feature covariance per temporal
 frequency band, ``augment.diffusion.SpectralPrior``), so the skip itself removes the noise at the frequencies
-real motion lacks (not in the paper).
+real motion lacks (not in the paper). Further loss terms plug in by name (``loss_terms``, ``augment.methods.hooks``).
+
+A run config sets ``UmsdTrain`` (``method.params.train``); the network's size comes from ``base_models.size`` and
+the seed from the run. ``UmsdTrain.recipe`` expands them into the full ``UmsdTrainConfig`` the trainer reads and the
+model folder records; research variants (skip_time, content_pace, pace_steps, the network's ablation switches)
+are set on that recipe by the lab only.
 ``train_umsd`` runs a fixed number of steps (never a wall-clock cap) and is bit-identical for the same clips,
 config, seed and thread count. Output folder (written to a temporary sibling, then renamed into place):
 ``umsd.safetensors`` (weights) and ``umsd.json`` (``UmsdTrainArtifact``: network config, normaliser, training
@@ -54,7 +57,7 @@ from typing import Any, Literal
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field, model_serializer, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_serializer, model_validator
 from safetensors.torch import load_file
 from torch import Tensor
 
@@ -63,6 +66,7 @@ from motionaug.augment.diffusion import NoiseSchedule, SpectralPrior, estimate_s
 from motionaug.augment.io import read_json_model
 from motionaug.augment.methods.base import Progress
 from motionaug.augment.methods.common import run_steps, write_model_folder
+from motionaug.augment.methods.hooks import HookSpec, LossBatch, loss_terms, split_spec
 from motionaug.augment.motion.batch import pad_batch
 from motionaug.augment.motion.features import Normalizer, compute_mean_std, feature_slices, recover_from_ric
 from motionaug.augment.synth import restyled
@@ -82,7 +86,15 @@ PACE_KEY_PREFIX = "pace."  # the pace regressor's weights in the model file (``p
 FOOT_JOINTS = (*T2M.feet_left, *T2M.feet_right)  # the order of the four foot-contact channels
 PRIOR_SKIPS = ("covariance", "content")  # the skips whose estimate uses the training frames' second moments
 # left out of config dumps at their defaults
-LATER_FIELDS = ("align_content", "synthetic_pairs", "w_spec", "w_acc", "skip_time", "content_pace", "pace_steps")
+OMITTED_AT_DEFAULT = (
+    "align_content",
+    "synthetic_pairs",
+    "w_spec",
+    "loss_terms",
+    "skip_time",
+    "content_pace",
+    "pace_steps",
+)
 
 
 class UmsdTrainConfig(BaseModel):
@@ -110,11 +122,8 @@ class UmsdTrainConfig(BaseModel):
         description="L1 on the temporal amplitude spectrum of the facing-frame joints and root height, metres "
         "(not in the paper): rewards rhythm (sway, bob, step-rate swings) whatever its phase",
     )
-    w_acc: float = Field(
-        0.0,
-        ge=0,
-        description="L1 on joint accelerations, m/s^2 (not in the paper): charges frame-to-frame shake in the x0 "
-        "predictions, which costs little in L_pos and L_vel",
+    loss_terms: tuple[HookSpec, ...] = Field(
+        (), description="training-loss terms registered by name (augment.methods.hooks.loss_terms), with weights"
     )
     use_dcc: bool = Field(True, description="ablation switch for L_dcc (sec. 4.5)")
     use_dsc: bool = Field(True, description="ablation switch for L_dsc (sec. 4.5)")
@@ -176,7 +185,7 @@ class UmsdTrainConfig(BaseModel):
         """Omit the fields added later at their defaults, so the configs (and the keys of the models) made before
         they existed stay the same."""
         data = handler(self)
-        for name in LATER_FIELDS:
+        for name in OMITTED_AT_DEFAULT:
             if getattr(self, name) == type(self).model_fields[name].default:
                 data.pop(name, None)
         return data
@@ -218,6 +227,53 @@ class UmsdTrainConfig(BaseModel):
             "dcc": self.w_dcc if self.use_dcc else 0.0,
             "dsc": self.w_dsc if self.use_dsc else 0.0,
         }
+
+
+NETWORK_SIZES: dict[str, dict[str, int]] = {
+    "tiny": {"d_model": 32, "n_heads": 2, "ff_size": 64, "msm_blocks": 1, "d_state": 4},  # seconds-long smoke runs
+    "small": {},  # the CPU-sized defaults of ``UmsdTrainConfig``
+    "paper": {"d_model": 128, "ff_size": 512, "d_state": 16},  # about 4x slower per step than small
+}
+
+
+class UmsdTrain(BaseModel):
+    """What a run config sets of UMSD's training (``method.params.train``): the schedule, the crop, Eq. 12's
+    weights, the skip, the synthetic pairs, held-out styles and loss terms by name. The network's size is the
+    run's ``base_models.size`` and its seed the run's (``recipe``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    steps: int = Field(2000, ge=1, description="optimiser steps (a fixed count; there is no time cap)")
+    batch_size: int = Field(8, ge=1, description="rows per loss term and step (rec, dcc, dsc each)")
+    lr: float = Field(1e-4, gt=0, description="AdamW learning rate (sec. 4.1: AdamW)")
+    max_frames: int = Field(120, ge=8, description="training crop per clip, frames (6 s at 20 fps)")
+    w_dcc: float = Field(1.0, ge=0, description="Eq. 10 / Eq. 12 weight (0: the sec. 4.5 ablation)")
+    w_dsc: float = Field(1.0, ge=0, description="Eq. 11 / Eq. 12 weight (0: the sec. 4.5 ablation)")
+    w_pos: float = Field(1.0, ge=0, description="Eq. 12: joint positions, metres")
+    w_vel: float = Field(1.0, ge=0, description="Eq. 12: joint velocities, m/s")
+    w_foot: float = Field(1.0, ge=0, description="Eq. 12: planted-foot speed, m/s")
+    w_spec: float = Field(0.0, ge=0, description="L1 on the joints' amplitude spectra over time (module doc)")
+    skip: Literal["none", "covariance", "unit", "content"] = Field(
+        "none", description="x0 as the linear estimate from x_t + the network's residual (module doc); none: x0"
+    )
+    synthetic_pairs: bool = Field(False, description="render each synthetic clip in a partner style (module doc)")
+    exclude_styles: tuple[str, ...] = Field((), description="styles held out of training (zero-shot, sec. 4.4)")
+    log_every: int = Field(50, ge=1, description="history interval, steps")
+    loss_terms: tuple[HookSpec, ...] = Field(
+        (), description="more loss terms by name with their weight, e.g. [{name: NAME, weight: 0.1}]"
+    )
+
+    @field_validator("loss_terms")
+    @classmethod
+    def _known_terms(cls, specs: tuple[HookSpec, ...]) -> tuple[HookSpec, ...]:
+        return tuple(loss_terms.checked(list(specs)))
+
+    def recipe(self, size: str = "small", seed: int = 0) -> UmsdTrainConfig:
+        """The full training config: these settings, the network of ``size`` (``NETWORK_SIZES``) and ``seed``."""
+        if size not in NETWORK_SIZES:
+            known = list(NETWORK_SIZES)
+            raise MotionDataError("config base_models.size", f"UMSD has no network size {size!r}; known: {known}")
+        return UmsdTrainConfig(**self.model_dump(), **NETWORK_SIZES[size], seed=seed)
 
 
 class UmsdTrainArtifact(BaseModel):
@@ -461,6 +517,7 @@ class UmsdTrainer:
         self.basis, self.var = data.second_moments()
         self.spectral = data.spectral_prior() if config.skip_time == "spectral" else None
         self.free = pace_channels(config)  # ``content_pace: false``: channels out of the content-centred prior
+        self.loss_terms = loss_terms.create_all(list(config.loss_terms), "config method.params.train.loss_terms")
 
     # -- sampling --
 
@@ -549,22 +606,14 @@ class UmsdTrainer:
         speed = pv[:, :, list(FOOT_JOINTS)].norm(dim=-1)  # (B, T-1, 4)
         out["foot"] = (speed * planted).sum() / planted.sum().clamp(min=1)
         total = total + cfg.w_pos * out["pos"] + cfg.w_vel * out["vel"] + cfg.w_foot * out["foot"]
-        if cfg.w_acc > 0:
-            out["acc"] = self._acceleration_l1(pv, tv, mask)
-            total = total + cfg.w_acc * out["acc"]
         if cfg.w_spec > 0:
             out["spec"] = self._spectrum_l1(pred, batch.x0, keep)
             total = total + cfg.w_spec * out["spec"]
+        for spec, term in zip(cfg.loss_terms, self.loss_terms):
+            out[split_spec(spec)[0]] = term(LossBatch(pj, tj, mask, self.data.fps))
+            total = total + term.weight * out[split_spec(spec)[0]]
         out["total"] = total
         return out
-
-    def _acceleration_l1(self, pred_vel: Tensor, target_vel: Tensor, mask: Tensor) -> Tensor:
-        """L1 between the joint accelerations (m/s^2) of prediction and target, from their joint velocities (m/s,
-        (B, T-1, J, 3)), over the frames whose two neighbours are real. A shake of +-e metres alternating frame to frame
-        costs e in position, 2e fps in velocity and 4e fps^2 here: the term that sees it."""
-        triple = (mask[:, 2:] & mask[:, 1:-1] & mask[:, :-2])[..., None, None].float()
-        acc = ((pred_vel[:, 1:] - pred_vel[:, :-1]) - (target_vel[:, 1:] - target_vel[:, :-1])) * self.data.fps
-        return (acc.abs() * triple).sum() / (triple.sum() * acc.shape[2] * 3).clamp(min=1)
 
     def _spectrum_l1(self, pred: Tensor, target: Tensor, keep: Tensor) -> Tensor:
         """L1 between the amplitude spectra over time of the root-relative, facing-frame joints (the ``ric`` block)

@@ -1,0 +1,120 @@
+"""Fingerprints of every shipped method config's outputs on a tiny synthetic corpus, to compare two commits.
+
+Each shipped ``configs/*.yaml`` method's params are taken as they are, with ``train`` sized down to the method's
+own ``smoke_params`` and fewer sampling steps, then run through the method contract (train, prepare, load,
+transfer) without Ray. Printed per config: sha256 of every weight file written and of the motion and caption
+columns of the outputs. Run it in two worktrees (``--root``) and diff the two outputs:
+
+    .venv/bin/python bench/bench_behaviour.py --root ../base > /tmp/base.txt
+    .venv/bin/python bench/bench_behaviour.py --root . > /tmp/new.txt && diff /tmp/base.txt /tmp/new.txt
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import yaml
+
+CONFIGS = (
+    "umsd-synthetic",
+    "bandai2-umsd",
+    "bandai2-erd",
+    "stats-synthetic",
+    "bandai2-stats",
+    "bandai2-onthefly",
+    "onthefly-lora-synthetic",
+)
+STYLES = ("proud", "old")
+N_CLIPS = 40
+
+
+def tree_env(root: Path) -> dict[str, str]:
+    """An environment whose ``motionaug`` is the worktree at ``root``, ahead of the installed (editable) copy."""
+    shim = Path(tempfile.mkdtemp()) / "motionaug"
+    shim.mkdir()
+    for layer in ("schemas", "models", "augment", "workflows"):
+        (shim / layer).symlink_to((root / layer).resolve())
+    return {**os.environ, "PYTHONPATH": str(shim.parent), "RAY_USAGE_STATS_ENABLED": "0"}
+
+
+def digest(chunks) -> str:
+    h = hashlib.sha256()
+    for chunk in chunks:
+        h.update(chunk)
+    return h.hexdigest()[:16]
+
+
+def run_config(name: str, root: Path, corpus: Path, work: Path) -> list[str]:
+    from motionaug.augment.corpus import Corpus
+    from motionaug.augment.methods.base import TrainingSpec
+    from motionaug.augment.methods.registry import create_method, method_class
+
+    config = yaml.safe_load((root / "configs" / f"{name}.yaml").read_text())
+    method_name = config["method"]["name"]
+    params = dict(config["method"].get("params") or {})
+    smoke = method_class(method_name).smoke_params
+    if "train" in smoke:
+        params["train"] = {**params.get("train", {}), **smoke["train"]}
+    for key in ("ddim_steps", "batch_size"):
+        if key in smoke and key in method_class(method_name).Params.model_fields:
+            params[key] = smoke[key]
+    if "neutral_style" in params:
+        params["neutral_style"] = "neutral"  # the synthetic stand-in's plain style
+    method = create_method(method_name, params)
+    clips = list(Corpus(corpus))
+    trained = None
+    if method.trains:
+        trained = method.train(corpus, work / "trained", TrainingSpec(size="tiny", options={}, seed=0))
+    lines = []
+    content = [c for c in clips if c.style == "neutral" and c.n_frames >= 40]
+    for style_name in STYLES:
+        from motionaug.schemas.styles import StyleSpec
+
+        example = next(c for c in clips if c.style == style_name)
+        spec = {"adjective": style_name}
+        style = StyleSpec(name=style_name, words=spec, examples=[{"source": example.id, "description": "a walk"}])
+        artifact = method.prepare(style, [example], trained, content[:8], work / style_name, seed=0)
+        model = method.load(artifact, trained)
+        outputs = model.transfer(content[:6], seed=0)
+        done = [o for o in outputs if hasattr(o, "motion")]
+        motions = digest(o.motion.tobytes() for o in done)
+        captions = digest(repr([c.model_dump() for c in o.captions]).encode() for o in done)
+        lines.append(f"{name} {style_name} motion {motions} captions {captions} rows {len(outputs)}")
+    for path in sorted(work.rglob("*.safetensors")):
+        lines.append(f"{name} weights {path.relative_to(work)} {digest([path.read_bytes()])}")
+    return lines
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--root", type=Path, default=Path("."), help="the worktree whose code and configs to run")
+    parser.add_argument("--configs", default=",".join(CONFIGS), help="comma-separated shipped config names")
+    parser.add_argument("--in-tree", action="store_true", help=argparse.SUPPRESS)  # the child run in --root's code
+    args = parser.parse_args()
+    if not args.in_tree:
+        command = [sys.executable, __file__, "--root", str(args.root), "--configs", args.configs, "--in-tree"]
+        raise SystemExit(subprocess.run(command, env=tree_env(args.root)).returncode)
+    import torch
+
+    import motionaug.augment
+
+    print(f"code: {list(motionaug.augment.__path__)}", file=sys.stderr)
+    torch.set_num_threads(1)
+    from motionaug.augment.synth import generate_corpus
+
+    with tempfile.TemporaryDirectory() as tmp:
+        corpus = Path(tmp) / "corpus"
+        generate_corpus(corpus, N_CLIPS, seed=0)
+        for name in args.configs.split(","):
+            for line in run_config(name, args.root, corpus, Path(tmp) / name):
+                print(line, flush=True)
+
+
+if __name__ == "__main__":
+    main()

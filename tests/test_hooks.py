@@ -1,0 +1,89 @@
+"""Hooks registered from outside the package reach the Ray workers that use them.
+
+The output shaper below is defined in this test module; the run config names the module in ``hooks.modules``,
+so every worker imports it before building the method. A worker that had not would fail the run with an unknown
+shaper. Imports only the package (the workers import this module by name, without the tests' conftest).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from motionaug.augment.corpus import Corpus
+from motionaug.augment.methods.hooks import (
+    OutputShaper,
+    ShapeContext,
+    import_hook_modules,
+    output_shapers,
+    split_spec,
+)
+from motionaug.augment.methods.registry import method_class
+from motionaug.augment.outputs.shards import iter_shard_rows, row_motion
+from motionaug.augment.synth import generate_corpus
+from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.run_config import load_run_config
+
+
+@output_shapers.register("test-content")
+class ContentBack(OutputShaper):
+    """Gives the content clip back: every output is its source, up to normalising rounding."""
+
+    def __call__(self, output: np.ndarray, context: ShapeContext) -> np.ndarray:
+        return context.content.copy()
+
+
+def run_config(corpus: Path, out: Path, modules: list[str]):
+    params = {**method_class("umsd").smoke_params, "shapers": ["test-content"], "guidance": "none"}
+    styles = [
+        {
+            "name": "proud",
+            "words": {"adjective": "proud", "adverb": "proudly"},
+            "examples": [{"source": "000004", "description": "a person walks proudly"}],
+        }
+    ]
+    data = {
+        "corpus": {"path": str(corpus), "filters": {"source_styles": ["neutral"], "min_frames": 40}},
+        "styles": styles,
+        "method": {"name": "umsd", "params": params},
+        "hooks": {"modules": modules},
+        "base_models": {"size": "tiny"},
+        "compute": {"num_cpus": 2, "batch_size": 4, "unit_size": 4},
+        "output": str(out),
+        "seed": 0,
+    }
+    return load_run_config(None, data=data)
+
+
+def test_specs_and_unknown_modules_are_one_line() -> None:
+    assert split_spec("moments") == ("moments", {})
+    assert split_spec({"name": "moments", "floor": 0.5}) == ("moments", {"floor": 0.5})
+    assert output_shapers.create({"name": "moments", "floor": 0.5}).floor == 0.5
+    with pytest.raises(MotionDataError, match=r"output shaper 'moments': .*floor"):
+        output_shapers.create({"name": "moments", "floor": 2.0})
+    with pytest.raises(MotionDataError, match=r"config hooks\.modules: cannot import 'no_such_hooks'"):
+        import_hook_modules(["no_such_hooks"])
+    with pytest.raises(ValueError, match="registered already"):
+        output_shapers.register("test-content")(type("Other", (OutputShaper,), {"__call__": lambda s, o, c: o}))
+
+
+def test_a_shaper_defined_in_a_test_module_runs_in_the_ray_workers(tmp_path: Path) -> None:
+    import ray
+
+    from motionaug.workflows.ray_executor import execute_run
+
+    corpus = tmp_path / "corpus"
+    generate_corpus(corpus, 24, seed=0)
+    config = run_config(corpus, tmp_path / "run", ["tests.test_hooks"])
+    try:
+        execute_run(config)
+    finally:
+        if ray.is_initialized():
+            ray.shutdown()
+    sources = {c.id: c for c in Corpus(corpus)}
+    rows = list(iter_shard_rows(tmp_path / "run"))
+    assert rows
+    for row in rows:  # the shaper ran: every output is its source
+        np.testing.assert_allclose(row_motion(row), sources[row["source_id"]].motion, atol=1e-4)

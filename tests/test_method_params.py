@@ -1,0 +1,66 @@
+"""The settings a user sets per method: the caps on their number, and old configs failing with one line."""
+
+from __future__ import annotations
+
+import pytest
+from pydantic import BaseModel
+
+from motionaug.augment.methods.erd import ErdTrain, ErdTrainConfig
+from motionaug.augment.methods.registry import method_class
+from motionaug.schemas.errors import MotionDataError
+
+
+def fields(model: type[BaseModel], skip: tuple[str, ...] = ()) -> list[str]:
+    """Every setting of ``model``, nested models' fields counted one by one."""
+    out = []
+    for name, field in model.model_fields.items():
+        kind = field.annotation
+        if name in skip:
+            continue
+        if isinstance(kind, type) and issubclass(kind, BaseModel):
+            out += [f"{name}.{inner}" for inner in fields(kind)]
+        else:
+            out.append(name)
+    return out
+
+
+def test_umsd_holds_at_most_ten_settings_and_fifteen_training_ones() -> None:
+    params = method_class("umsd").Params
+    assert len(fields(params, skip=("train",))) + 1 <= 10
+    assert len(fields(params.model_fields["train"].annotation)) <= 15
+
+
+def test_style_erd_training_settings_expand_into_the_recipe() -> None:
+    train = ErdTrain(steps=7)
+    assert train.recipe().model_dump() == ErdTrainConfig(steps=7).model_dump()
+    tiny = train.recipe("tiny", 5)
+    assert tiny.latent == 8 and tiny.classifier_steps == 2 and tiny.seed == 5 and tiny.steps == 7
+    with pytest.raises(MotionDataError, match=r"config base_models\.size: Style-ERD has no network size 'huge'"):
+        train.recipe("huge")
+
+
+@pytest.mark.parametrize(
+    ("name", "params", "message"),
+    [
+        ("erd", {"train": {"latent": 8}}, r"method\.params\.train\.latent: erd: removed; .*base_models\.size"),
+        ("erd", {"train": {"w_moments": 0.0}}, r"method\.params\.train\.w_moments: erd: removed; .*lab"),
+        ("umsd", {"train": {"seed": 1}}, r"method\.params\.train\.seed: umsd: removed; the run's seed"),
+        ("umsd", {"keep": "root"}, r"method\.params\.keep: umsd: removed; "),
+        ("umsd", {"guidance_below": 10}, r"method\.params\.guidance_below: umsd: removed; .*lab/README\.md"),
+    ],
+)
+def test_a_removed_setting_is_one_line_saying_what_to_do(name: str, params: dict, message: str) -> None:
+    with pytest.raises(MotionDataError, match=message) as err:
+        method_class(name).parse_params(params)
+    assert "\n" not in str(err.value)
+
+
+def test_on_the_fly_artefacts_made_before_a_setting_left_still_load() -> None:
+    from motionaug.augment.methods.onthefly.params import OnTheFlyParams
+
+    old = {**OnTheFlyParams().model_dump(), "pair_guidance_scale": 2.5, "neutralise_content": True}
+    assert OnTheFlyParams.model_validate(old) == OnTheFlyParams()
+    with pytest.raises(ValueError, match="neutralise_content was removed"):
+        OnTheFlyParams.model_validate({**old, "neutralise_content": False})
+    with pytest.raises(MotionDataError, match=r"method\.params\.pair_guidance_scale: onthefly: removed; fixed at 2\.5"):
+        method_class("onthefly").parse_params({"pair_guidance_scale": 2.5})
