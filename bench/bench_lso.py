@@ -46,6 +46,7 @@ from motionaug.augment.methods.umsd.method import nearest_root_motion
 from motionaug.augment.metrics import matched_fmd, mean_foot_skating
 from motionaug.augment.motion.features import Normalizer, features_to_joints
 from motionaug.augment.outputs.shards import iter_shard_rows, row_motion
+from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.run_config import load_run_config
 from motionaug.schemas.skeleton import T2M
 from motionaug.workflows.ray_executor import execute_run
@@ -215,9 +216,17 @@ def run(args: argparse.Namespace) -> None:
     log(f"wrote {path}")
 
 
+def fmd_or_none(a: np.ndarray, b: np.ndarray, seed: int) -> tuple[float | None, int]:
+    """``matched_fmd``, or None where the covariances of so few clips have no real square root."""
+    try:
+        return matched_fmd(a, b, seed)
+    except MotionDataError:
+        return None, min(len(a), len(b))
+
+
 def score(args: argparse.Namespace, transfers: Transfers) -> dict[str, Any]:
     """Per (style, draw, k): each judge's top-1 reading of every transfer, FMD against real held-out takes of the
-    style (judge-1 style features, matched counts), foot skating."""
+    style (content judge 1's features, matched counts, as the earlier Bandai-2 figures), foot skating."""
     judges = load_judges(args.work / "judges")
     held = Corpus(args.corpus, split=args.split).by_style()
     train = Corpus(args.corpus, split="train").by_style()
@@ -226,10 +235,10 @@ def score(args: argparse.Namespace, transfers: Transfers) -> dict[str, Any]:
     for (style, draw, k), outputs in sorted(transfers.items()):
         motions = [m for _, m in outputs]
         readings = {name: judges.predict(name, motions) for name in JUDGES}
-        _, real_feats = judges.predict("style", [c.motion for c in held[style]])
-        _, train_feats = judges.predict("style", [c.motion for c in train[style]])
-        fmd, n = matched_fmd(readings["style"][1], real_feats, args.seed)
-        floor, _ = matched_fmd(train_feats, real_feats, args.seed)
+        _, real_feats = judges.predict("content", [c.motion for c in held[style]])
+        _, train_feats = judges.predict("content", [c.motion for c in train[style]])
+        fmd, n = fmd_or_none(readings["content"][1], real_feats, args.seed)
+        floor, _ = fmd_or_none(train_feats, real_feats, args.seed)
         units.append(
             {
                 "style": style,
@@ -261,7 +270,8 @@ def summary(result: dict[str, Any], k: int) -> dict[str, float]:
         out[f"cra_{judge}"] = float(
             np.mean([np.mean([r == t for r, t in zip(u["read"][judge], u["truth_content"])]) for u in units])
         )
-    out["fmd_ratio"] = float(np.mean([u["fmd"] / u["fmd_floor"] for u in units]))
+    ratios = [u["fmd"] / u["fmd_floor"] for u in units if u["fmd"] is not None and u["fmd_floor"]]
+    out["fmd_ratio"] = float(np.mean(ratios)) if ratios else float("nan")
     out["skating_ratio"] = float(np.mean([u["skating"] / max(u["real_skating"], 1e-9) for u in units]))
     per_style = defaultdict(list)
     for u in units:
