@@ -10,7 +10,7 @@ WebGL the page draws key-pose strips on a 2D canvas from the same data.
 
 Encoding, per clip: the root track as float32 (T, 3) and the other joints relative to the root as int16
 millimetres (T, J, 3), base64 (at most half a millimetre off), plus the foot contacts of the HumanML3D rule as one
-hex digit per frame: a fraction of the shards' float32 features (bench/RESULTS.md has the disk a large run takes).
+hex digit per frame: a fraction of the shards' float32 features.
 
 Clocks: every panel plays on one clock in seconds, each at its own fps; a shorter clip holds its last frame until
 the longest ends, then all loop. ``limb_agreement`` (the default sort, worst first) is the mean Pearson

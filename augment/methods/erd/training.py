@@ -10,7 +10,7 @@ clips, config, seed and thread count:
    target (reconstruction, Eqs. 2-3) and with the sec. 3.2 transfer target (neutral -> a random other style,
    any other style -> neutral; adversarial + perceptual losses, and the class-conditional moment loss).
 
-The paper's recipe alone does not stylize at a CPU budget of a few thousand steps (bench/RESULTS.md section 12):
+The paper's recipe alone does not stylize at a CPU budget of a few thousand steps (the ablations in lab/NOTES.md):
 the bottleneck + LSTM stack is far from reconstructing, so content is lost, and the adversarial signal is too
 weak and unstable to teach the style branches. The defaults therefore add an output skip (the network learns a
 per-frame style offset), a moment loss (the transfer's change in per-channel window mean and std must match the
@@ -76,14 +76,14 @@ class ErdTrainConfig(BaseModel):
     classifier_batch_size: int = Field(64, ge=2)
     # supp. A trains with Adam 1e-4 / 5e-5 for 2000 epochs (~500k steps at batch 16); a CPU budget allows a few
     # thousand steps, so the rates are 30x / 10x the paper's. The defaults below are the recipe that stylizes at that
-    # budget (bench/RESULTS.md section 12); the paper's own: residual_output=False, neutral_share=0, w_moments=0,
+    # budget; the paper's own: residual_output=False, neutral_share=0, w_moments=0,
     # w_adv=1, w_per=0.1, lr_generator=1e-4, lr_discriminator=5e-5.
     lr_generator: float = Field(3e-3, gt=0, description="Adam; supp. A: 1e-4 (see above)")
     lr_discriminator: float = Field(5e-4, gt=0, description="Adam; supp. A: 5e-5 (see above)")
     lr_classifier: float = Field(1e-3, gt=0)
     # Eq. 8 has w_adv = 1, w_per = 0.1. With the moment loss doing the styling, an adversarial term at full weight
-    # undoes it (the moment loss stops falling), and the perceptual term at 0.1 is under 1% of the generator loss,
-    # so content drifts (bench/RESULTS.md section 12).
+    # undoes it (the moment loss stops falling), and the perceptual term at 0.1 is too small beside the generator
+    # loss, so content drifts.
     w_adv: float = Field(0.1, ge=0, description="Eq. 8 (paper: 1; see above)")
     w_per: float = Field(1.0, ge=0, description="Eq. 8 (paper: 0.1; see above)")
     # Eq. 9's w_gp = 128 does not carry over as a number. The authors' code applies it to the gradient of the
@@ -92,8 +92,8 @@ class ErdTrainConfig(BaseModel):
     # form the critic stays flat (D ~ 0 on real and fake, L_cri ~ 1.9, L_adv ~ 0.003: no style signal) even
     # against a poor generator; with 1 it separates them (D(real) ~ 0.8, D(fake) ~ -0.7 within 300 steps).
     w_gp: float = Field(0.5, ge=0, description="Eq. 9, per-sample mean |grad D|^2 (the paper's 128 / 16^2)")
-    # Style supervision beyond the paper's losses (its recipe does not stylize within a CPU budget; see
-    # bench/RESULTS.md section 12): both are applied to the transfer windows only.
+    # Style supervision beyond the paper's losses (its recipe does not stylize within a CPU budget): both are
+    # applied to the transfer windows only.
     w_style: float = Field(
         0.0, ge=0, description="cross-entropy of a frozen style classifier on the transfer, against the target style"
     )

@@ -70,7 +70,7 @@ class OnTheFlyParams(BaseModel):
         0,
         description="0: full fine-tune; >0: LoRA adapters on lora_targets (they start at zero: give them a larger "
         "lr and alpha, but not more passes, which memorise the example; configs/onthefly-lora-synthetic.yaml is the "
-        "recipe bench/RESULTS.md compares with full fine-tuning).",
+        "shipped recipe).",
     )
     lora_alpha: float | None = Field(None, description="LoRA scale numerator; defaults to the rank.")
     lora_targets: tuple[str, ...] = Field(

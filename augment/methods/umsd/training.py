@@ -157,8 +157,7 @@ class UmsdTrainConfig(BaseModel):
     threads: int = Field(1, ge=1, description="torch threads while training (part of what makes runs identical)")
     log_every: int = Field(50, ge=1, description="history interval, steps")
     # network (``motionaug.models.umsd.UmsdConfig``); the paper gives no widths: CPU-sized defaults. The Bandai-2
-    # preset (lab/umsd_quality.py ``--preset bandai``) keeps them and trains on shorter crops and batches;
-    # bench/bench_umsd.py ``--preset large`` (d_model 128, ff 512, d_state 16, batch 16) is about 4x slower
+    # preset keeps them and trains on shorter crops and batches; a wider network is slower per step on a CPU
     d_model: int = Field(64, ge=1)
     n_heads: int = Field(4, ge=1)
     ff_size: int = Field(256, ge=1)
