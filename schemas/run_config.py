@@ -197,7 +197,7 @@ class ComputeConfig(_Strict):
         default=30.0, gt=0, description="Seconds to reach a cluster given by address before giving up."
     )
     unschedulable_timeout_s: float = Field(
-        default=60.0,
+        default=45.0,
         ge=0,
         description="Seconds a stage may wait for a node with the resources its tasks ask for (an autoscaler may "
         "add one); then the run stops naming the setting. An embedded Ray has no autoscaler: it stops at once.",
