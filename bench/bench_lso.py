@@ -46,9 +46,11 @@ from motionaug.augment.methods.umsd.method import nearest_root_motion
 from motionaug.augment.metrics import matched_fmd, mean_foot_skating
 from motionaug.augment.motion.features import Normalizer, features_to_joints
 from motionaug.augment.outputs.shards import iter_shard_rows, row_motion
+from motionaug.augment.synth import STYLE_WORDS
 from motionaug.schemas.errors import MotionDataError
-from motionaug.schemas.run_config import load_run_config
+from motionaug.schemas.run_config import RunConfig, load_run_config
 from motionaug.schemas.skeleton import T2M
+from motionaug.schemas.styles import StyleExample, StyleSpec
 from motionaug.workflows.ray_executor import execute_run
 
 REPO = Path(__file__).resolve().parents[1]
@@ -145,6 +147,17 @@ def moment_row(args: argparse.Namespace, fold_corpus: Path, draws: ExampleDraws,
     return out
 
 
+def style_spec(shipped: RunConfig, style: str) -> StyleSpec:
+    """The shipped config's spec of ``style``, else (a synthetic style the config does not list) the synthetic
+    corpus's own words for it, with a walk described in them."""
+    for spec in shipped.styles:
+        if spec.name == style:
+            return spec
+    words = STYLE_WORDS[style]
+    description = f"a person walks {words.adverb}" if words.adverb else f"a person walks {words.phrases[0]}"
+    return StyleSpec(name=style, words=words, examples=[StyleExample(source="unused", description=description)])
+
+
 def method_row(args: argparse.Namespace, fold_corpus: Path, draws: ExampleDraws, styles: list[str]) -> Transfers:
     """``motionaug run`` of the method's shipped config per (draw, k): trained parts fit on the fold corpus (no
     held-out style), examples given as files, content pool from the fold corpus's train split."""
@@ -156,7 +169,7 @@ def method_row(args: argparse.Namespace, fold_corpus: Path, draws: ExampleDraws,
         for k in args.k:
             style_specs = []
             for style in styles:
-                spec = next(s for s in shipped.styles if s.name == style)
+                spec = style_spec(shipped, style)
                 files = []
                 for i in examples_of(draws, style, draw, k):
                     path = example_dir / f"{i}.npy"
@@ -167,6 +180,7 @@ def method_row(args: argparse.Namespace, fold_corpus: Path, draws: ExampleDraws,
             data = json.loads(shipped.model_dump_json())
             data["styles"] = style_specs
             data["corpus"] |= {"path": str(fold_corpus), "split": args.split, "pool_split": "train"}
+            data["corpus"]["filters"]["source_styles"] = [NEUTRAL[args.kind]]
             data["base_models"] |= {
                 "path": str(args.work / args.fold / f"{args.row}-trained"),
                 "corpus": str(fold_corpus),
