@@ -212,6 +212,7 @@ def test_a_job_uses_both_nodes(cluster: str, tmp_path: Path) -> None:
 
 def cluster_listening(cluster_dir: Path) -> set[tuple[str, int]]:
     """(address, port) of every listening TCP socket of the processes local-cluster.sh started (their sessions)."""
+    import ray  # noqa: F401  (puts the psutil Ray bundles on the path)
     import psutil
 
     sessions = {int(line.split()[0]) for line in (cluster_dir / "pids").read_text().splitlines() if line.strip()}
@@ -241,6 +242,7 @@ def busy_transfer_workers(cluster_dir: Path) -> list[int]:
     a node stays in the session local-cluster.sh started it in, so no other cluster's worker is ever picked. The
     state API reports tasks about a second late: a short transfer task is often over before it is listed.
     """
+    import ray  # noqa: F401  (puts the psutil Ray bundles on the path)
     import psutil
 
     sessions = {int(line.split()[0]) for line in (cluster_dir / "pids").read_text().splitlines() if line.strip()}
@@ -314,6 +316,38 @@ def test_unknown_job_and_unreachable_cluster_are_one_line_errors(cluster: str) -
     assert nowhere.exit_code == 1 and "cannot reach" in nowhere.output
     lines = [line for line in nowhere.output.splitlines() if line.strip()]
     assert len(lines) == 1, nowhere.output
+
+
+@pytest.mark.parametrize(
+    ("setting", "named"),
+    [("compute.transfer_cpus=4", "compute.transfer_cpus"), ("compute.transfer_gpus=1", "compute.transfer_gpus")],
+)
+def test_submit_refuses_what_no_node_of_the_cluster_has(
+    cluster: str, corpus: Path, tmp_path: Path, setting: str, named: str
+) -> None:
+    """The cluster's nodes are read through its dashboard before submitting: exit 2, one line, no job, no folder."""
+    from motionaug.workflows.jobs import cluster_nodes, connect
+
+    capacity = cluster_nodes(cluster)
+    assert not capacity.autoscales and sorted(n["CPU"] for n in capacity.nodes) == [1.0, 1.0]
+    out = tmp_path / "run"
+    cfg = config_file(tmp_path, corpus, out, seed=7)
+    before = {job.submission_id for job in connect(cluster).list_jobs()}
+    result = CliRunner().invoke(app, ["submit", str(cfg), "--address", cluster, "--set", setting])
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert result.exit_code == 2 and len(lines) == 1 and named in lines[0] and "cluster's nodes" in lines[0], lines
+    assert {job.submission_id for job in connect(cluster).list_jobs()} == before and not out.exists()
+
+
+def test_a_cluster_counts_as_fixed_only_when_its_monitor_says_so() -> None:
+    from motionaug.workflows.jobs import fixed_size
+
+    read_only = {"autoscalerReport": {"nodeTypeMapping": {"ab": "node_ab", "cd": "node_cd"}}}
+    assert fixed_size({"autoscalingStatus": None})
+    assert fixed_size({"autoscalingStatus": "up", "clusterStatus": read_only})
+    grows = {"autoscalerReport": {"nodeTypeMapping": {"ab": "ray.head.default", "cd": "gpu-workers"}}}
+    assert not fixed_size({"autoscalingStatus": "up", "clusterStatus": grows})
+    assert not fixed_size({"autoscalingStatus": "up", "clusterStatus": {}})
 
 
 def test_wrong_token_is_refused(cluster: str, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -133,12 +133,16 @@ FAST = [
     ),
     Case("import-unmapped-rig", ("corpus", "import-bvh", "rig", "--out", "n"), 1, "pass --joint-map"),
 ]
+EMPTY_SELECTION = Case(
+    "empty-selection", ("run", "nothing.yaml", "--out", "run-b"), 1, "select 0 of the 20 readable clips"
+)
+FAST.append(EMPTY_SELECTION)
 AFTER_RUN = [
     Case("export-damaged-shard", ("export", "run", "--out", "exported"), 1, "checksum mismatch; run `motionaug run`"),
     Case("evaluate-damaged-shard", ("evaluate", "run"), 1, "checksum mismatch; run `motionaug run`"),
     Case("export-over-foreign-folder", ("export", "run", "--out", "mine"), 1, "holds no earlier export"),
 ]
-IN_TASK = Case("empty-selection", ("run", "nothing.yaml", "--out", "run-b"), 1, "select 0 of the 20 readable clips")
+IN_TASK = Case("disk-full-in-task", ("run", "good.yaml", "--out", "small/run"), 1, "no space left on device")
 BAD_CLIPS = {
     "huge_header": "header says 1000000000 frames but file has 192 bytes",
     "nan_clip": "NaN/Inf values from frame 3",
@@ -246,8 +250,9 @@ def _build_scene(root: Path) -> None:
 def scene(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
     root = tmp_path_factory.mktemp("catalogue")
     _build_scene(root)
-    mounted = [p for p, o in ((root / "ro", "ro,size=64k"), (root / "full", "size=64k")) if _mount_tmpfs(p, o)]
-    if len(mounted) < 2:
+    mounts = ((root / "ro", "ro,size=64k"), (root / "full", "size=64k"), (root / "small", "size=128k"))
+    mounted = [p for p, o in mounts if _mount_tmpfs(p, o)]
+    if len(mounted) < len(mounts):
         if os.environ.get("CI", "").lower() == "true":
             pytest.fail("cannot mount a tmpfs for the read-only and full-disk cases (run as root)")
         pytest.skip("cannot mount a tmpfs (not root?): the disk cases need one")
@@ -384,7 +389,14 @@ def test_bad_clips_become_rejects_and_a_damaged_shard_is_refused(scene: Path, fa
 def test_an_error_raised_inside_a_ray_task_is_one_line(scene: Path) -> None:
     result = _motionaug(scene, *IN_TASK.args)
     _check(IN_TASK, result)
-    assert not list((scene / "run-b").rglob("*.parquet"))
+    assert (scene / "small" / "run" / "plan.json").is_file(), "the run got as far as its tasks"
+    assert not list((scene / "small").rglob("*.parquet"))
+
+
+def test_filters_that_select_nothing_claim_no_folder(scene: Path, fast_results) -> None:
+    """Found by reading the corpus before the run starts: no run folder, no Ray."""
+    _check(EMPTY_SELECTION, fast_results[0][EMPTY_SELECTION.id])
+    assert not (scene / "run-b").exists()
 
 
 @pytest.mark.parametrize(

@@ -524,17 +524,22 @@ def submit_command(
     ] = False,
 ) -> None:
     """Submit the run to a Ray cluster through the Jobs API; the job id is motionaug-<run id>."""
-    from motionaug.augment.methods.registry import validate_method_params
-    from motionaug.workflows.jobs import dashboard_url, submit_run
-    from motionaug.workflows.preflight import preflight
+    from motionaug.augment.methods.registry import method_class, validate_method_params
+    from motionaug.workflows.jobs import cluster_nodes, dashboard_url, submit_run
+    from motionaug.workflows.preflight import check_cluster_resources, preflight
 
     with usage_errors():
         dashboard_url(address)
         cfg = _load_config(config, overrides or [], None, out)
         if cluster_paths:
             validate_method_params(cfg.method.name, cfg.method.params, cfg.hooks.modules)
+            trains = method_class(cfg.method.name).trains
         else:
-            preflight(cfg, local=False)
+            trains = preflight(cfg, local=False).trains
+    capacity = run_safely(lambda: cluster_nodes(address))
+    if not capacity.autoscales:
+        with usage_errors():
+            check_cluster_resources(cfg, trains, capacity.nodes)
     job = run_safely(lambda: submit_run(cfg, address, retry=retry, name=config.stem))
     console.print(f"submitted job {job.job_id} ({job.name}; run {job.run_id}, folder {job.run_dir})", highlight=False)
     console.print(f"dashboard: {job.dashboard_url}/#/jobs/{job.job_id}", highlight=False)

@@ -111,6 +111,60 @@ def connect(address: str) -> JobSubmissionClient:
             raise MotionDataError(url, reason) from None
 
 
+@dataclass(frozen=True)
+class ClusterNodes:
+    """What a cluster's dashboard says of its capacity: each alive node's total resources, and whether an
+    autoscaler runs (then a request no node meets now may still be met by a node it adds)."""
+
+    nodes: list[dict[str, float]]
+    autoscales: bool
+
+
+def cluster_nodes(address: str, timeout_s: float = 30.0) -> ClusterNodes:
+    """The alive nodes' resources from the state API (``/api/v0/nodes``) and the autoscaler's presence from
+    ``/api/cluster_status``, read through the dashboard with the token attached."""
+    from urllib.error import HTTPError, URLError
+    from urllib.request import Request, urlopen
+
+    url = dashboard_url(address)
+    connect(address)  # the Jobs API's own lines for a cluster that is down or is not a Ray dashboard
+
+    def get(path: str) -> dict[str, Any]:
+        request = Request(f"{url}{path}", headers=auth_headers())
+        try:
+            with urlopen(request, timeout=timeout_s) as answer:  # noqa: S310 (an http(s) URL, checked above)
+                return json.loads(answer.read().decode("utf-8"))
+        except HTTPError as err:
+            if err.code in (401, 403):
+                raise MotionDataError(url, f"token refused (HTTP {err.code}); see docs/scale-out.md") from None
+            raise MotionDataError(url, f"{path} answered HTTP {err.code}; is this a Ray dashboard?") from None
+        except (URLError, OSError, ValueError) as err:
+            reason = f"cannot reach the Ray dashboard ({type(err).__name__} reading {path}; is the cluster up?)"
+            raise MotionDataError(url, reason) from None
+
+    try:
+        rows = get("/api/v0/nodes?limit=10000&detail=1")["data"]["result"]["result"]
+        status = get("/api/cluster_status")["data"]
+    except (KeyError, TypeError):
+        raise MotionDataError(url, "the dashboard's node list has an unknown shape; is this a Ray dashboard?") from None
+    nodes = [
+        {k: float(v) for k, v in (row.get("resources_total") or {}).items()}
+        for row in rows
+        if row.get("state") == "ALIVE"
+    ]
+    return ClusterNodes(nodes=nodes, autoscales=not fixed_size(status))
+
+
+def fixed_size(status: dict[str, Any]) -> bool:
+    """Whether ``/api/cluster_status`` shows a cluster no autoscaler grows: no monitor report, or Ray's read-only
+    node provider (``ray start`` nodes), which names each node's type after the node itself (``node_<id>``). Any
+    other shape counts as autoscaling, so a request is never refused on a cluster that might grow."""
+    if status.get("autoscalingStatus") is None:
+        return True
+    mapping = ((status.get("clusterStatus") or {}).get("autoscalerReport") or {}).get("nodeTypeMapping")
+    return isinstance(mapping, dict) and bool(mapping) and all(v == f"node_{k}" for k, v in mapping.items())
+
+
 @contextmanager
 def _cluster_errors(url: str) -> Iterator[None]:
     """Connection, auth and HTTP failures of the Jobs API as one-line MotionDataErrors."""

@@ -4,7 +4,8 @@
 params), then what a run used to find out later, after its folder was claimed or while Ray waited: the split
 files, the style examples themselves (found, long enough, described with the style's words), caption words a
 HumanML3D caption line cannot hold, the resources each stage asks for against the machine the embedded Ray runs
-on, the output folder, and whether a cluster given by address answers at all (``probe_address``). A cluster's own
+on, the output folder, whether the corpus filters select any clip (``check_selection``), and whether a cluster
+given by address answers at all (``probe_address``). A cluster's own
 resources are checked once Ray has joined it (``ray_executor.RayBackend``), from the cluster's node list.
 """
 
@@ -19,7 +20,14 @@ from motionaug.augment.corpus.style_examples import load_style_examples
 from motionaug.augment.methods.base import StyleTransferMethod
 from motionaug.schemas.errors import MotionConfigError, MotionDataError
 from motionaug.schemas.run_config import RunConfig
-from motionaug.workflows.pipeline import Resources, check_config, stage_resources
+from motionaug.workflows.pipeline import (
+    Resources,
+    check_config,
+    empty_selection,
+    keep_clip,
+    over_limit,
+    stage_resources,
+)
 
 CAPTION_SEPARATORS = ("#", "\n", "\r")  # a HumanML3D caption line is ``text#tokens#start#end``
 
@@ -42,6 +50,24 @@ def preflight(config: RunConfig, local: bool | None = None) -> StyleTransferMeth
     if local if local is not None else config.compute.address is None:
         check_local_resources(config, method.trains)
     return method
+
+
+def check_selection(config: RunConfig) -> None:
+    """The corpus filters select at least one readable clip within the clip limit, found by reading the corpus
+    until the first such clip (the whole corpus only when there is none): raises the plan stage's own
+    ``MotionDataError`` (exit 1) before the run claims its folder. ``allow_empty`` runs skip it."""
+    if config.allow_empty:
+        return
+    corpus = Corpus(config.corpus.path, split=config.corpus.split)
+    readable = 0
+    too_long = []
+    for clip in corpus:
+        readable += 1
+        if (reject := over_limit(clip, config)) is not None:
+            too_long.append(reject)
+        elif keep_clip(clip, config):
+            return
+    raise empty_selection(config, readable - len(too_long), corpus.rejects + too_long)
 
 
 def check_output(output: Path) -> None:
@@ -115,14 +141,26 @@ def check_local_resources(config: RunConfig, trains: bool, machine: dict[str, fl
     if asked is not None and asked > cores:
         raise MotionConfigError("config compute.num_cpus", f"{asked} CPUs asked, but this machine has {cores}")
     offer = {"CPU": float(asked if asked is not None else cores), "GPU": machine["GPU"]}
+    check_requests(config, trains, [offer], "the embedded Ray on this machine has", bool(asked))
+
+
+def check_cluster_resources(config: RunConfig, trains: bool, nodes: list[dict[str, float]]) -> None:
+    """Every stage's request within what one alive node of the cluster has (a submitted run's check, from the
+    cluster's own node list; a cluster with an autoscaler is not checked, as it may add the node)."""
+    check_requests(config, trains, nodes, "the cluster's nodes have", False)
+
+
+def check_requests(config: RunConfig, trains: bool, nodes: list[dict[str, float]], whose: str, capped: bool) -> None:
+    """One line naming the setting when a stage asks for more of a resource than any of ``nodes`` has."""
     for stage, request in stage_resources(config, trains).items():
-        problem = unfit(request, [offer])
+        problem = unfit(request, nodes)
         if problem is not None:
             setting, amount, kind, most = problem
-            has = "none" if most == 0 else f"{most:g}" + (" (compute.num_cpus)" if kind == "CPU" and asked else "")
+            has = "none" if most == 0 else f"{most:g}" + (" (compute.num_cpus)" if kind == "CPU" and capped else "")
+            if most and len(nodes) > 1:
+                has = f"at most {has} per node"
             asks = f"{stage} tasks ask for {amount:g} {kind}{plural(amount)} each"
-            reason = f"{asks}, but the embedded Ray on this machine has {has}"
-            raise MotionConfigError(f"config {setting}", reason)
+            raise MotionConfigError(f"config {setting}", f"{asks}, but {whose} {has}")
 
 
 def plural(amount: float) -> str:

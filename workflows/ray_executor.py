@@ -27,7 +27,7 @@ from motionaug.schemas.run_config import ComputeConfig, RunConfig, resolve_paths
 from motionaug.schemas.shards import Manifest
 from motionaug.workflows.executor import RunProgress, run_pipeline, run_unit
 from motionaug.workflows.pipeline import Resources, Stage, write_resolved_config
-from motionaug.workflows.preflight import plural, preflight, probe_address, unfit
+from motionaug.workflows.preflight import check_selection, plural, preflight, probe_address, unfit
 
 
 @dataclass
@@ -366,6 +366,7 @@ def execute_run(
     reads back from anywhere. ``lock_wait_s``: how long to wait for a folder's previous writer to exit."""
     config = resolve_paths(config, Path.cwd())
     preflight(config)
+    check_selection(config)
     compute = config.compute
     if compute.address is not None:
         probe_address(compute.address, compute.connect_timeout_s)
