@@ -184,6 +184,7 @@ def method_row(args: argparse.Namespace, fold_corpus: Path, draws: ExampleDraws,
             data["base_models"] |= {
                 "path": str(args.work / args.fold / f"{args.row}-trained"),
                 "corpus": str(fold_corpus),
+                "pretrain_if_missing": True,  # on-the-fly's prior too is fitted on the fold corpus, never reused
             }
             data["output"] = str(args.work / args.fold / f"{args.row}-{args.split}-d{draw}-k{k}")
             data["compute"] |= {"num_cpus": 2}

@@ -222,6 +222,11 @@ class RunConfig(_Strict):
     hooks: HooksConfig = Field(default_factory=HooksConfig)
     fan_out: FanOutConfig = Field(default_factory=FanOutConfig)
     base_models: BaseModelsConfig = Field(default_factory=BaseModelsConfig)
+    evaluators: Path | None = Field(
+        default=None,
+        description="The judges `motionaug evaluate` scores the run with: an evaluators folder (`motionaug pretrain "
+        "--evaluators-only`), kept apart from any method's trained models; None: those of base_models.path.",
+    )
     compute: ComputeConfig = Field(default_factory=ComputeConfig)
     output: Path = Path("runs/run")
     seed: int = 0
@@ -324,7 +329,7 @@ def read_config_file(path: Path) -> dict[str, Any]:
 
 
 def resolve_paths(config: RunConfig, base: Path) -> RunConfig:
-    """Relative corpus/output/base-model/example paths made absolute against ``base`` (the config's folder)."""
+    """Relative corpus, output, base-model, evaluator and example paths made absolute against ``base``."""
 
     def absolute(p: Path | None) -> Path | None:
         return None if p is None else (p if p.is_absolute() else (base / p)).resolve()
@@ -338,6 +343,7 @@ def resolve_paths(config: RunConfig, base: Path) -> RunConfig:
             "corpus": config.corpus.model_copy(update={"path": absolute(config.corpus.path)}),
             "output": absolute(config.output),
             "base_models": config.base_models.resolved(absolute),
+            "evaluators": absolute(config.evaluators),
             "styles": styles,
         }
     )

@@ -210,10 +210,18 @@ def test_a_job_uses_both_nodes(cluster: str, tmp_path: Path) -> None:
     assert "NODES 2" in logs and "CWD alive" in logs, logs[-2000:]
 
 
+def bundled_psutil():
+    """The psutil Ray ships (``ray/thirdparty_files``), on the path once ``ray`` is imported."""
+    import importlib
+
+    import ray  # noqa: F401
+
+    return importlib.import_module("psutil")
+
+
 def cluster_listening(cluster_dir: Path) -> set[tuple[str, int]]:
     """(address, port) of every listening TCP socket of the processes local-cluster.sh started (their sessions)."""
-    import ray  # noqa: F401  (puts the psutil Ray bundles on the path)
-    import psutil
+    psutil = bundled_psutil()
 
     sessions = {int(line.split()[0]) for line in (cluster_dir / "pids").read_text().splitlines() if line.strip()}
     pids = set()
@@ -242,8 +250,7 @@ def busy_transfer_workers(cluster_dir: Path) -> list[int]:
     a node stays in the session local-cluster.sh started it in, so no other cluster's worker is ever picked. The
     state API reports tasks about a second late: a short transfer task is often over before it is listed.
     """
-    import ray  # noqa: F401  (puts the psutil Ray bundles on the path)
-    import psutil
+    psutil = bundled_psutil()
 
     sessions = {int(line.split()[0]) for line in (cluster_dir / "pids").read_text().splitlines() if line.strip()}
     busy = []

@@ -162,6 +162,23 @@ def test_evaluation_without_base_models_says_so_instead_of_inventing(tiny) -> No
     assert list(evaluation.stages) == ["plan", "prepare", "transfer"]  # pipeline order, not the manifest's sorted keys
 
 
+def test_the_configs_evaluators_judge_the_run_before_its_base_models(tiny, tmp_path: Path) -> None:
+    """``evaluators`` in the run config: judges apart from the method's trained models (a protocol's shared ones)."""
+    from motionaug.augment.eval.evaluation import _base_models_dir
+    from motionaug.schemas.run_config import RunConfig, resolve_paths
+
+    manifest = RunDir(tiny["run"]).manifest()
+    judges = str(tiny["base"])
+    assert _base_models_dir(tiny["run"], manifest, {"evaluators": judges}, None) == tiny["base"]
+    assert _base_models_dir(tiny["run"], manifest, {"evaluators": judges}, tmp_path) == tmp_path  # --evaluators wins
+    style = {"name": "proud", "words": {"adjective": "proud"}, "examples": [{"source": "1", "description": "x"}]}
+    data = {"corpus": {"path": "c"}, "styles": [style], "evaluators": "j"}
+    config = resolve_paths(RunConfig.model_validate(data), tmp_path)
+    assert config.evaluators == (tmp_path / "j").resolve()
+    result = CliRunner().invoke(app, ["evaluate", str(tiny["run"]), "--evaluators", judges])
+    assert result.exit_code == 0, result.output
+
+
 def test_export_min_content_score_filters_by_scores_parquet(tiny, tmp_path: Path) -> None:
     run = tiny["run"]
     scores = scores_by_id(run)

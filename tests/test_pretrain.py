@@ -335,6 +335,28 @@ def test_ensure_base_models_reuses_a_match_and_retrains_on_corpus_change(
     )
 
 
+def test_a_prior_without_evaluators_is_complete_only_for_a_caller_that_wants_none(
+    corpus: Path, baseline: tuple[Path, BaseModelsInfo], text_encoder, tmp_path: Path
+) -> None:
+    """``pretrain --no-evaluators``: the same prior and encoder, no evaluators folder; one that wants them retrains."""
+    from motionaug.augment.training.evaluators import evaluators_folder
+
+    out = tmp_path / "base"
+    ensure_base_models(corpus, out, "tiny", config=tiny_config(), text_encoder=text_encoder, evaluators=False)
+    assert evaluators_folder(out) is None and evaluators_folder(baseline[0]) is not None
+    for name in ("prior", "motion_encoder"):
+        assert (out / f"{name}.safetensors").read_bytes() == (baseline[0] / f"{name}.safetensors").read_bytes()
+    calls: list[str] = []
+    ensure_base_models(
+        corpus, out, "tiny", config=tiny_config(), progress=lambda *a: calls.append(a[0]), evaluators=False
+    )
+    assert not calls  # complete for a caller that wants no evaluators
+    ensure_base_models(
+        corpus, out, "tiny", config=tiny_config(), progress=lambda *a: calls.append(a[0]), text_encoder=text_encoder
+    )
+    assert calls and evaluators_folder(out) is not None
+
+
 def test_bad_inputs_are_one_line_errors(tmp_path: Path) -> None:
     with pytest.raises(ValidationError):
         PretrainConfig(prior_stpes=3)  # type: ignore[call-arg]

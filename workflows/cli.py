@@ -21,7 +21,7 @@ from rich.progress import (
 )
 from rich.table import Table
 
-from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.errors import MotionConfigError, MotionDataError
 from motionaug.workflows import cli_inspect, cli_stream, cli_view  # noqa: F401  (register their commands on the app)
 from motionaug.workflows.cli_app import (
     app,
@@ -261,6 +261,14 @@ def pretrain(
         bool,
         typer.Option(help="Only the evaluators (content/style classifiers), into OUT: for methods without a prior."),
     ] = False,
+    evaluators: Annotated[
+        bool,
+        typer.Option(
+            "--evaluators/--no-evaluators",
+            help="Train the evaluators too (OUT/evaluators); --no-evaluators: the prior and motion encoder only, for "
+            "runs scored by judges of their own (the run config's evaluators).",
+        ),
+    ] = True,
     from_mdm: Annotated[
         Path | None,
         typer.Option(help="Official MDM humanml trans_enc checkpoint as the prior: trains only encoder + evaluators."),
@@ -286,7 +294,8 @@ def pretrain(
         typer.Option(min=0.01, help="Off a terminal (a job's log): seconds between progress lines (default 10)."),
     ] = None,
 ) -> None:
-    """Train the base models: the T2M diffusion prior and the motion encoder, and the evaluators (OUT/evaluators)."""
+    """Train the base models: the T2M diffusion prior and the motion encoder, and the evaluators (OUT/evaluators)
+    unless --no-evaluators."""
     from motionaug.augment.training.pretrain import PretrainConfig, ensure_base_models, fit_evaluators
     from motionaug.schemas.run_config import apply_overrides
 
@@ -298,6 +307,9 @@ def pretrain(
     mdm = {"from_mdm": from_mdm, "clip_weights": clip_weights, "mdm_stats": mdm_stats}
     options |= {name: str(path.resolve()) for name, path in mdm.items() if path is not None}
     config = run_safely(lambda: PretrainConfig.for_size(size, seed=seed, **options))
+    if evaluators_only and not evaluators:
+        with usage_errors():
+            raise MotionConfigError("--evaluators-only", "asks for the evaluators alone; drop --no-evaluators")
     if evaluators_only:
         with off_terminal("pretrain evaluators", log_every):
             metrics = run_safely(lambda: fit_evaluators(corpus, out, config))
@@ -308,7 +320,9 @@ def pretrain(
 
         with off_terminal("pretrain (driver)", log_every):
             folder = run_safely(
-                lambda: pretrain_on_ray(corpus, out, config, workers, gpus_per_worker, address, log_interval(log_every))
+                lambda: pretrain_on_ray(
+                    corpus, out, config, workers, gpus_per_worker, address, log_interval(log_every), evaluators
+                )
             )
         _print_base_models(folder)
         return
@@ -316,7 +330,13 @@ def pretrain(
         with off_terminal("pretrain", log_every) as beat:
             folder = run_safely(
                 lambda: ensure_base_models(
-                    corpus, out, size, seed, progress=beat.update if beat else None, config=config
+                    corpus,
+                    out,
+                    size,
+                    seed,
+                    progress=beat.update if beat else None,
+                    config=config,
+                    evaluators=evaluators,
                 )
             )
         _print_base_models(folder)
@@ -338,7 +358,9 @@ def pretrain(
             loss = next((f"{k} {v:.4f}" for k, v in metrics.items() if "loss" in k), "")
             bars.update(tasks[stage], completed=step, total=total, loss=loss)
 
-        folder = run_safely(lambda: ensure_base_models(corpus, out, size, seed, progress=progress, config=config))
+        folder = run_safely(
+            lambda: ensure_base_models(corpus, out, size, seed, progress=progress, config=config, evaluators=evaluators)
+        )
     _print_base_models(folder)
 
 

@@ -108,7 +108,12 @@ def evaluate_command(
     ] = None,
     base_models: Annotated[
         Path | None,
-        typer.Option(help="Evaluators: an evaluators folder or base models holding one (default: the run's)."),
+        typer.Option(
+            "--evaluators",
+            "--base-models",
+            help="The judges: an evaluators folder or base models holding one (default: the config's evaluators, "
+            "else the run's base models).",
+        ),
     ] = None,
 ) -> None:
     """Score every stylized clip; write report.md, report.html and scores.parquet into the run folder."""

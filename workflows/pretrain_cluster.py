@@ -44,12 +44,14 @@ def _worker(setup: dict[str, Any]) -> None:
     rank, world = context.get_world_rank(), context.get_world_size()
     config = PretrainConfig.model_validate(setup["config"]).model_copy(update={"threads": setup["threads"]})
     parallel = Parallel(rank, world, _report)
+    evaluators = setup.get("evaluators", True)
     if rank != 0:
         pretrain(setup["corpus"], setup["out"], config, None, parallel=parallel, device=get_device())
         return
     # rank 0's progress as a line every log_every seconds (Ray sends worker output to the driver and the job log)
     with Heartbeat("pretrain (rank 0)", every=setup.get("log_every", 10.0), write=LOG.info) as beat:
-        pretrain(setup["corpus"], setup["out"], config, beat.update, parallel=parallel, device=get_device())
+        options = {"parallel": parallel, "device": get_device(), "evaluators": evaluators}
+        pretrain(setup["corpus"], setup["out"], config, beat.update, **options)
 
 
 def _cpus_per_worker(workers: int) -> int:
@@ -84,6 +86,7 @@ def train_on_ray(
     workers: int,
     gpus_per_worker: float = 0.0,
     log_every: float = 10.0,
+    evaluators: bool = True,
 ) -> None:
     """Pretrain into ``out_dir`` on ``workers`` Ray Train workers of the Ray this process is connected to."""
     out = Path(out_dir).resolve()
@@ -102,6 +105,7 @@ def train_on_ray(
             "config": config.model_dump(),
             "threads": config.threads or cpus,
             "log_every": log_every,
+            "evaluators": evaluators,
         },
         torch_config=TorchConfig(backend="nccl" if gpus_per_worker > 0 else "gloo"),
         scaling_config=ScalingConfig(num_workers=workers, use_gpu=gpus_per_worker > 0, resources_per_worker=resources),
@@ -123,6 +127,7 @@ def pretrain_on_ray(
     gpus_per_worker: float = 0.0,
     address: str | None = None,
     log_every: float = 10.0,
+    evaluators: bool = True,
 ) -> Path:
     """``ensure_base_models`` with the training on Ray Train; joins ``address`` or starts an embedded Ray.
 
@@ -142,7 +147,10 @@ def pretrain_on_ray(
             corpus_dir,
             out_dir,
             config=config,
-            runner=lambda corpus, out, cfg: train_on_ray(corpus, out, cfg, workers, gpus_per_worker, log_every),
+            runner=lambda corpus, out, cfg: train_on_ray(
+                corpus, out, cfg, workers, gpus_per_worker, log_every, evaluators
+            ),
+            evaluators=evaluators,
         )
     finally:
         if started:

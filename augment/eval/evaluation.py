@@ -192,9 +192,12 @@ def load_classifiers(path: str | Path) -> Classifiers:
 
 
 def _base_models_dir(run_dir: Path, manifest: Manifest, config: dict, given: Path | None) -> Path | None:
-    """``--base-models``, else the run's recorded or configured base models, else ``<run>/base_models``."""
+    """``--evaluators``, else the config's ``evaluators``, else the run's recorded or configured base models, else
+    ``<run>/base_models``."""
     if given is not None:
         return Path(given)
+    if config.get("evaluators"):
+        return Path(config["evaluators"])
     configured = (config.get("base_models") or {}).get("path")
     for candidate in (manifest.base_models, configured, run_dir / "base_models"):
         if candidate and (evaluators_folder(candidate) or (Path(candidate) / BASE_JSON).is_file()):

@@ -712,8 +712,10 @@ def pretrain(
     text_encoder: TextEncoder | None = None,
     parallel: Parallel = SINGLE,
     device: torch.device | None = None,
+    evaluators: bool = True,
 ) -> BaseModelsInfo | None:
-    """Train all three stages into ``out_dir`` (resuming from its checkpoints) and save the base models there.
+    """Train all three stages into ``out_dir`` (resuming from its checkpoints) and save the base models there;
+    ``evaluators`` False leaves stage c out (a protocol that scores with judges of its own needs no others).
 
     ``device``: where to train; None = ``pick_device()`` (a Ray Train worker passes its own GPU). In a
     data-parallel run every process trains the prior and the motion encoder together; then the lead alone
@@ -737,9 +739,10 @@ def pretrain(
     if not parallel.lead:
         return None
     run.parallel = SINGLE
-    classifiers = train_evaluators(run)
-    labels = {"content": run.train.content_labels, "style": run.train.style_labels}
-    save_evaluators(out / EVALUATORS_DIR, classifiers, labels, fingerprint, run.metrics)
+    if evaluators:
+        classifiers = train_evaluators(run)
+        labels = {"content": run.train.content_labels, "style": run.train.style_labels}
+        save_evaluators(out / EVALUATORS_DIR, classifiers, labels, fingerprint, run.metrics)
     info = _info(run, prior, motion_encoder, fingerprint)
     BaseModels(info=info, prior=prior.cpu(), motion_encoder=motion_encoder.cpu(), normalizer=normalizer).save(out)
     return info
@@ -782,14 +785,14 @@ def fit_evaluators(
     return {**run.metrics, "train_clips": float(len(train)), "test_clips": float(len(test))}
 
 
-def _complete(out: Path, fingerprint: str, config_hash: str) -> bool:
-    """True when ``out`` holds base models made from this corpus with this config."""
+def _complete(out: Path, fingerprint: str, config_hash: str, evaluators: bool = True) -> bool:
+    """True when ``out`` holds base models made from this corpus with this config (and evaluators, if wanted)."""
     try:
         info = BaseModelsInfo.model_validate_json((out / BASE_JSON).read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return False
     files_ok = all((out / f"{n}.safetensors").is_file() for n in ("prior", "motion_encoder"))
-    files_ok = files_ok and (out / "Mean.npy").is_file() and evaluators_folder(out) is not None
+    files_ok = files_ok and (out / "Mean.npy").is_file() and (not evaluators or evaluators_folder(out) is not None)
     return files_ok and info.corpus_fingerprint == fingerprint and info.config_hash == config_hash
 
 
@@ -802,10 +805,12 @@ def ensure_base_models(
     config: PretrainConfig | None = None,
     text_encoder: TextEncoder | None = None,
     runner: Callable[[Path, Path, PretrainConfig], object] | None = None,
+    evaluators: bool = True,
 ) -> Path:
     """``out_dir`` if it already holds matching base models, else pretrain into it (stale checkpoints cleared).
 
     ``runner(corpus, out, config)`` trains instead of the one-process ``pretrain`` (the Ray Train workflow).
+    ``evaluators`` False: the prior and the motion encoder only.
     """
     config = config or PretrainConfig.for_size(size, seed=seed)
     if config.from_mdm is not None:  # the official prior: only the motion encoder and evaluators are trained
@@ -817,7 +822,7 @@ def ensure_base_models(
     out = Path(out_dir)
     config = for_corpus(config, corpus_dir)
     fingerprint = corpus_fingerprint(corpus_dir)
-    if _complete(out, fingerprint, config.config_hash()):
+    if _complete(out, fingerprint, config.config_hash(), evaluators):
         return out
     if (out / BASE_JSON).is_file():  # never replace models silently: say why they are made again
         LOG.warning(
@@ -829,5 +834,5 @@ def ensure_base_models(
     if runner is not None:
         runner(Path(corpus_dir), out, config)
         return out
-    pretrain(corpus_dir, out, config, progress, text_encoder)
+    pretrain(corpus_dir, out, config, progress, text_encoder, evaluators=evaluators)
     return out
