@@ -64,3 +64,17 @@ def test_on_the_fly_artefacts_made_before_a_setting_left_still_load() -> None:
         OnTheFlyParams.model_validate({**old, "neutralise_content": False})
     with pytest.raises(MotionDataError, match=r"method\.params\.pair_guidance_scale: onthefly: removed; fixed at 2\.5"):
         method_class("onthefly").parse_params({"pair_guidance_scale": 2.5})
+
+
+def test_on_the_flys_recipe_only_settings_are_refused_in_a_config_and_kept_in_its_artefacts() -> None:
+    from motionaug.augment.methods.onthefly.params import RECIPE_ONLY, OnTheFlyParams, OnTheFlyRecipe, parse_params
+
+    assert not set(RECIPE_ONLY) & set(OnTheFlyParams.model_fields) and len(OnTheFlyParams.model_fields) == 23
+    with pytest.raises(MotionDataError, match=r"method\.params\.inpaint_feet: onthefly: removed; fixed at its default"):
+        method_class("onthefly").parse_params({"inpaint_feet": True})
+    method = method_class("onthefly")({"max_steps": 2})
+    assert isinstance(method.params, OnTheFlyRecipe) and method.params.inpaint_feet is False
+    recipe = parse_params(max_steps=2, inpaint_feet=True)
+    assert recipe.inpaint_feet and method_class("onthefly")(recipe).params is recipe
+    with pytest.raises(MotionDataError, match=r"method\.params\.ema_decay: onthefly: 1\.0 outside"):
+        parse_params(ema_decay=1.0)

@@ -67,7 +67,9 @@ from motionaug.augment.methods.onthefly.params import (
     METHOD_NAME,
     POOL_CLIPS,
     OnTheFlyParams,
+    OnTheFlyRecipe,
     parse_params,
+    recipe_of,
     validate_params,
 )
 
@@ -84,6 +86,7 @@ __all__ = [
     "OnTheFlyMethod",
     "OnTheFlyModel",
     "OnTheFlyParams",
+    "OnTheFlyRecipe",
     "StylePairs",
     "WeightAverage",
     "base_fingerprint",
@@ -100,6 +103,7 @@ __all__ = [
     "parse_params",
     "pretrain_config",
     "read_artifact",
+    "recipe_of",
     "rebuild_transfer_model",
     "reconstruction_loss",
     "resolve_tempo",

@@ -15,7 +15,7 @@ from torch import Tensor, nn
 
 from motionaug.augment.methods.common import files_fingerprint, read_artifact_json, read_tensors
 from motionaug.augment.methods.onthefly.finetuning import lora_bias_parameters
-from motionaug.augment.methods.onthefly.params import METHOD_NAME, OnTheFlyParams
+from motionaug.augment.methods.onthefly.params import METHOD_NAME, OnTheFlyRecipe
 from motionaug.augment.training.base_models import BASE_JSON, PRIOR, BaseModels, load_module
 from motionaug.models.lora import (
     apply_lora,
@@ -36,7 +36,7 @@ class OnTheFlyArtifact(BaseModel):
     version: int = 1
     method: str = METHOD_NAME
     style: StyleSpec
-    params: OnTheFlyParams
+    params: OnTheFlyRecipe
     base_fingerprint: str
     weights: Literal["full", "lora"]
     weights_bytes: int
@@ -54,7 +54,7 @@ def base_fingerprint(base_dir: Path) -> str:
     return files_fingerprint(Path(base_dir), (BASE_JSON, f"{PRIOR}.safetensors"), "base-models file")
 
 
-def weights_state(model: nn.Module, params: OnTheFlyParams) -> dict[str, Tensor]:
+def weights_state(model: nn.Module, params: OnTheFlyRecipe) -> dict[str, Tensor]:
     """What the artefact stores: only adapter tensors for LoRA, else the whole transfer model."""
     if params.lora_rank > 0:
         state = {**lora_state_dict(model), **lora_bias_parameters(model, params)}

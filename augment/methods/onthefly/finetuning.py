@@ -38,7 +38,7 @@ from motionaug.augment.methods.common import (
     tempo_setting,
 )
 from motionaug.augment.methods.onthefly.pairs import StylePairs, kept_channels, neutral_twins
-from motionaug.augment.methods.onthefly.params import OnTheFlyParams
+from motionaug.augment.methods.onthefly.params import OnTheFlyRecipe
 from motionaug.augment.training.base_models import BaseModels
 from motionaug.models.lora import adapted_biases, apply_lora
 from motionaug.models.motion_encoder import semantic_loss
@@ -72,7 +72,7 @@ class FitResult:
 # ---- the losses -------------------------------------------------------------------------------------------
 
 
-def _schedule_index(params: OnTheFlyParams) -> tuple[NoiseSchedule, int]:
+def _schedule_index(params: OnTheFlyRecipe) -> tuple[NoiseSchedule, int]:
     """The respaced DDIM schedule and the number of steps from K to 0."""
     return NoiseSchedule.cosine().respace(params.ddim_steps), start_step_for(
         params.transfer_noise_step, params.ddim_steps
@@ -80,7 +80,7 @@ def _schedule_index(params: OnTheFlyParams) -> tuple[NoiseSchedule, int]:
 
 
 def reconstruction_loss(
-    model: nn.Module, pairs: StylePairs, params: OnTheFlyParams, generator: torch.Generator
+    model: nn.Module, pairs: StylePairs, params: OnTheFlyRecipe, generator: torch.Generator
 ) -> Tensor:
     """L_rec: mean over the DDIM path from K of ||m_s - y0_hat(t)||^2, starting from q_sample(m_sn, K).
 
@@ -104,7 +104,7 @@ def reconstruction_loss(
 
 
 def transferred_path_end(
-    model: nn.Module, batch: MotionBatch, text_embed: Tensor, params: OnTheFlyParams, noise: Tensor
+    model: nn.Module, batch: MotionBatch, text_embed: Tensor, params: OnTheFlyRecipe, noise: Tensor
 ) -> Tensor:
     """The differentiable DDIM transfer of ``batch`` from K (trajectory inpainted), the last x0 of the path."""
     sched, n_run = _schedule_index(params)
@@ -126,7 +126,7 @@ def semantic_guidance_loss(
     base: BaseModels,
     pool: ContentPool,
     indices: Sequence[int],
-    params: OnTheFlyParams,
+    params: OnTheFlyRecipe,
     generator: torch.Generator,
 ) -> Tensor:
     """L_s (Eq. 8): 1 - cos(motion_encoder(transferred corpus motions), text_encoder(revised captions))."""
@@ -143,12 +143,12 @@ def semantic_guidance_loss(
 # ---- what is trained --------------------------------------------------------------------------------------
 
 
-def lora_bias_parameters(model: nn.Module, params: OnTheFlyParams) -> dict[str, nn.Parameter]:
+def lora_bias_parameters(model: nn.Module, params: OnTheFlyRecipe) -> dict[str, nn.Parameter]:
     """The biases trained beside LoRA adapters (``lora_biases``): adapted layers' and the output layer's."""
     return adapted_biases(model, LORA_OUTPUT_LAYERS) if params.lora_biases else {}
 
 
-def _trainable(model: nn.Module, params: OnTheFlyParams) -> list[nn.Parameter]:
+def _trainable(model: nn.Module, params: OnTheFlyRecipe) -> list[nn.Parameter]:
     """Full fine-tune: every prior weight. LoRA: only the adapters (the copied prior is frozen first)."""
     if params.lora_rank == 0:
         model.requires_grad_(True)
@@ -186,7 +186,7 @@ class WeightAverage:
 # ---- the loop ---------------------------------------------------------------------------------------------
 
 
-def _step_plan(n_pool: int, params: OnTheFlyParams) -> int:
+def _step_plan(n_pool: int, params: OnTheFlyRecipe) -> int:
     if params.max_steps is not None:
         return params.max_steps
     if n_pool == 0:
@@ -211,7 +211,7 @@ def _batches(n_pool: int, n_steps: int, batch_size: int, generator: torch.Genera
 
 
 def finetune(
-    base: BaseModels, pairs: StylePairs, pool: ContentPool, params: OnTheFlyParams, progress: Progress | None = None
+    base: BaseModels, pairs: StylePairs, pool: ContentPool, params: OnTheFlyRecipe, progress: Progress | None = None
 ) -> FitResult:
     """Sec. 3.3-3.5: copy the prior, train it on lambda_rec L_rec + lambda_s L_s; everything else stays frozen.
 
@@ -263,7 +263,7 @@ def finetune(
 
 
 def resolve_tempo(
-    params: OnTheFlyParams,
+    params: OnTheFlyRecipe,
     base: BaseModels,
     examples: Sequence[MotionClip],
     corpus: Sequence[MotionClip],
@@ -278,7 +278,7 @@ def make_pool(
     base: BaseModels,
     corpus: Sequence[MotionClip],
     style: StyleSpec,
-    params: OnTheFlyParams,
+    params: OnTheFlyRecipe,
     generator: torch.Generator,
     tempo: float = 1.0,
 ) -> tuple[ContentPool, int]:

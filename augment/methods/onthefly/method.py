@@ -48,6 +48,8 @@ from motionaug.augment.methods.onthefly.params import (
     POOL_CLIPS,
     REMOVED_HOW,
     OnTheFlyParams,
+    OnTheFlyRecipe,
+    recipe_of,
     validate_params,
 )
 from motionaug.augment.training.base_models import BASE_JSON, BaseModels
@@ -75,7 +77,7 @@ class OnTheFlyMethod(StyleTransferMethod):
 
     name: ClassVar[str] = METHOD_NAME
     Params: ClassVar[type[BaseModel]] = OnTheFlyParams
-    params: OnTheFlyParams
+    params: OnTheFlyRecipe
     trains: ClassVar[bool] = True
     cost_rates: ClassVar[CostRates] = CostRates(prepare_s=25.0, transfer_clips_per_s=26.3, train_s=800.0)
 
@@ -90,6 +92,7 @@ class OnTheFlyMethod(StyleTransferMethod):
         self, params: OnTheFlyParams | dict[str, Any] | None = None, text_encoder: TextEncoder | None = None
     ) -> None:
         super().__init__(params)
+        self.params: OnTheFlyRecipe = recipe_of(self.params)  # the recipe-only settings at the product's defaults
         self.text_encoder = text_encoder
 
     @classmethod

@@ -36,7 +36,7 @@ from motionaug.augment.methods.common import (
     style_vocab,
 )
 from motionaug.augment.methods.onthefly.pairs import kept_channels, neutral_twins
-from motionaug.augment.methods.onthefly.params import OnTheFlyParams
+from motionaug.augment.methods.onthefly.params import OnTheFlyRecipe
 from motionaug.augment.motion.foot_lock import lock_feet
 from motionaug.augment.motion.tempo import retime_captions
 from motionaug.augment.outputs.shards import TransferOutput
@@ -68,7 +68,7 @@ class OnTheFlyModel:
         style: StyleSpec,
         base: BaseModels,
         model: nn.Module,
-        params: OnTheFlyParams,
+        params: OnTheFlyRecipe,
         batch_size: int | None = None,
         tempo: float = 1.0,
     ) -> None:

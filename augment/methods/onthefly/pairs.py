@@ -26,17 +26,17 @@ from motionaug.augment.methods.common import (
     neutral_text,
     trajectory_channels,
 )
-from motionaug.augment.methods.onthefly.params import PAIR_GUIDANCE_SCALE, OnTheFlyParams
+from motionaug.augment.methods.onthefly.params import PAIR_GUIDANCE_SCALE, OnTheFlyRecipe
 from motionaug.augment.training.base_models import BaseModels
 
 
-def kept_channels(params: OnTheFlyParams) -> list[int]:
+def kept_channels(params: OnTheFlyRecipe) -> list[int]:
     """Channels every sampler of the method inpaints from its reference: the trajectory, and the feet if asked."""
     return trajectory_channels(params.trajectory) + (feet_channels() if params.inpaint_feet else [])
 
 
 def neutral_twins(
-    prior: nn.Module, batch: MotionBatch, text_embed: Tensor, params: OnTheFlyParams, generator: torch.Generator
+    prior: nn.Module, batch: MotionBatch, text_embed: Tensor, params: OnTheFlyRecipe, generator: torch.Generator
 ) -> Tensor:
     """Eqs. 3-5: the prior's neutral version of each motion, same trajectory (inpainted exactly), (B, T, D).
 
@@ -73,7 +73,7 @@ class StylePairs:
 def make_pairs(
     base: BaseModels,
     examples: Sequence[MotionClip],
-    params: OnTheFlyParams,
+    params: OnTheFlyRecipe,
     generator: torch.Generator,
     vocab: dict[str, Any],
 ) -> StylePairs:

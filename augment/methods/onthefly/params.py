@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from motionaug.augment.diffusion.schedule import NUM_TRAIN_TIMESTEPS
 from motionaug.augment.motion.tempo import TEMPO_RANGE
 from motionaug.models.lora import DEFAULT_TARGETS as LORA_TARGETS
-from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.errors import MotionDataError, first_error
 
 METHOD_NAME = "onthefly"
 
@@ -26,10 +26,16 @@ REMOVED = {  # settings that left the params, with the default every artefact ma
     "neutralise_content": True,
 }
 REMOVED_HOW = {name: f"fixed at {default!r} (set by no config); drop the setting" for name, default in REMOVED.items()}
+RECIPE_ONLY = ("inpaint_feet", "lora_biases", "ema_decay", "tempo_references", "styled_corpus")
+REMOVED_HOW |= {
+    name: "fixed at its default in the product; experiments set it on OnTheFlyRecipe (lab/README.md); drop the setting"
+    for name in RECIPE_ONLY
+}
 
 
 class OnTheFlyParams(BaseModel):
-    """Every knob of the method; ``extra="forbid"`` so a typo in a config is an error, not a default."""
+    """What a user sets: the paper's hyper-parameters and what the shipped configs use; ``extra="forbid"`` so a typo
+    in a config is an error, not a default."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -50,9 +56,6 @@ class OnTheFlyParams(BaseModel):
     )
     trajectory: Literal["horizontal", "root"] = Field(
         "horizontal", description="Inpainted channels: root rotation + linear velocity, or also the root height."
-    )
-    inpaint_feet: bool = Field(
-        False, description="Also inpaint the foot-contact channels (pairs and transfer keep the gait's phase)."
     )
     foot_lock: bool = Field(
         False,
@@ -76,29 +79,12 @@ class OnTheFlyParams(BaseModel):
     lora_targets: tuple[str, ...] = Field(
         LORA_TARGETS, description="Modules given adapters, by their last name components (models.lora)."
     )
-    lora_biases: bool = Field(
-        False,
-        description="LoRA: also train the biases of the adapted layers and of the output layer (BitFit): "
-        "shifts a style holds over the whole clip cost low-rank deltas rank, a bias carries them.",
-    )
-    ema_decay: float | None = Field(
-        None, description="Keep an exponential moving average of the trained weights and ship it (None: the last step)."
-    )
     caption_variants: int = 3
     tempo: Literal["example", "content"] | float = Field(
         "example",
         description="Clock of the outputs: 'example' retimes content to the style's tempo measured from its "
         "examples (augment.motion.tempo); 'content' keeps the content's clock (the paper); a number sets it "
         "(below 1: slower).",
-    )
-    tempo_references: int = Field(
-        16,
-        description="Neutral corpus clips (captions nearest the examples' neutral descriptions) giving the neutral "
-        "cycle.",
-    )
-    styled_corpus: Literal["skip", "neutralise"] = Field(
-        "skip",
-        description="L_s pool: drop corpus clips whose captions name a style, or neutralise them (slow: DDPM from G).",
     )
     min_frames: int = 20
     bf16: bool | None = Field(
@@ -118,11 +104,41 @@ class OnTheFlyParams(BaseModel):
         return data
 
 
+class OnTheFlyRecipe(OnTheFlyParams):
+    """The product's params plus settings only experiments change, at the defaults the product runs with: the
+    method turns every ``OnTheFlyParams`` into one, and artefacts store it, so a lab variant's artefact says how it
+    was made."""
+
+    inpaint_feet: bool = Field(
+        False, description="Also inpaint the foot-contact channels (pairs and transfer keep the gait's phase)."
+    )
+    lora_biases: bool = Field(
+        False,
+        description="LoRA: also train the biases of the adapted layers and of the output layer (BitFit): "
+        "shifts a style holds over the whole clip cost low-rank deltas rank, a bias carries them.",
+    )
+    ema_decay: float | None = Field(
+        None, description="Keep an exponential moving average of the trained weights and ship it (None: the last step)."
+    )
+    tempo_references: int = Field(
+        16,
+        description="Neutral corpus clips (captions nearest the examples' neutral descriptions) giving the neutral "
+        "cycle.",
+    )
+    styled_corpus: Literal["skip", "neutralise"] = Field(
+        "skip",
+        description="L_s pool: drop corpus clips whose captions name a style, or neutralise them (slow: DDPM from G).",
+    )
+
+
+P = TypeVar("P", bound=OnTheFlyParams)
+
+
 def _fail(field: str, reason: str) -> MotionDataError:
     return MotionDataError(f"config method.params.{field}", f"{METHOD_NAME}: {reason}")
 
 
-def validate_params(params: OnTheFlyParams, num_timesteps: int = NUM_TRAIN_TIMESTEPS) -> OnTheFlyParams:
+def validate_params(params: P, num_timesteps: int = NUM_TRAIN_TIMESTEPS) -> P:
     """Range checks across fields, each failing with the field's name (pydantic only checks types)."""
     for name in ("pair_noise_step", "transfer_noise_step"):
         value = getattr(params, name)
@@ -152,8 +168,6 @@ def validate_params(params: OnTheFlyParams, num_timesteps: int = NUM_TRAIN_TIMES
         raise _fail("style_guidance", f"must be > 0 or null, got {params.style_guidance}")
     if params.lora_rank < 0:
         raise _fail("lora_rank", f"must be >= 0, got {params.lora_rank}")
-    if params.ema_decay is not None and not 0.0 < params.ema_decay < 1.0:
-        raise _fail("ema_decay", f"{params.ema_decay} outside (0, 1)")
     if params.lora_rank > 0 and not params.lora_targets:
         raise _fail("lora_targets", "empty: LoRA needs at least one module to adapt")
     if params.min_frames < 2:
@@ -162,13 +176,32 @@ def validate_params(params: OnTheFlyParams, num_timesteps: int = NUM_TRAIN_TIMES
         raise _fail("grad_clip", f"must be > 0 or null, got {params.grad_clip}")
     if isinstance(params.tempo, float) and not TEMPO_RANGE[0] <= params.tempo <= TEMPO_RANGE[1]:
         raise _fail("tempo", f"{params.tempo} outside [{TEMPO_RANGE[0]}, {TEMPO_RANGE[1]}]")
-    if params.tempo_references < 1:
-        raise _fail("tempo_references", f"must be >= 1, got {params.tempo_references}")
+    if isinstance(params, OnTheFlyRecipe):
+        if params.ema_decay is not None and not 0.0 < params.ema_decay < 1.0:
+            raise _fail("ema_decay", f"{params.ema_decay} outside (0, 1)")
+        if params.tempo_references < 1:
+            raise _fail("tempo_references", f"must be >= 1, got {params.tempo_references}")
     return params
 
 
-def parse_params(data: dict[str, Any] | None = None, **overrides: Any) -> OnTheFlyParams:
-    """Params from a dict (a config file) plus overrides, validated; errors name the field."""
+def parse_params(data: dict[str, Any] | None = None, **overrides: Any) -> OnTheFlyRecipe:
+    """The recipe the method runs from a dict (a config file) plus overrides, validated; errors name the field.
+    Recipe-only settings are accepted here (experiments, tests), not in a run config."""
     from motionaug.augment.methods.onthefly.method import OnTheFlyMethod  # the method imports these params
 
-    return OnTheFlyMethod.parse_params({**(data or {}), **overrides})
+    raw = {**(data or {}), **overrides}
+    lab = {name: raw.pop(name) for name in RECIPE_ONLY if name in raw}
+    return recipe_of(OnTheFlyMethod.parse_params(raw), **lab)
+
+
+def recipe_of(params: OnTheFlyParams, **lab: Any) -> OnTheFlyRecipe:
+    """``params`` as the recipe the method runs: the product's settings, the recipe-only ones at their defaults
+    unless ``lab`` sets them."""
+    if isinstance(params, OnTheFlyRecipe) and not lab:
+        return params
+    try:
+        recipe = OnTheFlyRecipe.model_validate({**params.model_dump(), **lab})
+    except ValidationError as err:
+        where, message = first_error(err, "")
+        raise MotionDataError(f"config method.params.{where}".rstrip("."), f"{METHOD_NAME}: {message}") from None
+    return validate_params(recipe)
