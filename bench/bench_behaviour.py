@@ -79,7 +79,7 @@ def run_config(name: str, root: Path, corpus: Path, work: Path) -> list[str]:
         example = next(c for c in clips if c.style == style_name)
         spec = {"adjective": style_name}
         style = StyleSpec(name=style_name, words=spec, examples=[{"source": example.id, "description": "a walk"}])
-        artifact = method.prepare(style, [example], trained, content[:8], work / style_name, seed=0)
+        artifact = method.prepare(style, [example], trained, content[:8], work / style_name, seed=0).folder
         model = method.load(artifact, trained)
         outputs = model.transfer(content[:6], seed=0)
         done = [o for o in outputs if hasattr(o, "motion")]

@@ -224,7 +224,7 @@ def run_variant(
     """Fine-tune one variant, transfer the content clips, score them."""
     method = OnTheFlyMethod(parse_params(params))
     start = time.perf_counter()
-    artifact = method.prepare(spec, examples, base_dir, corpus, work / f"artifact-{name}")
+    artifact = method.prepare(spec, examples, base_dir, corpus, work / f"artifact-{name}").folder
     prepare_s = time.perf_counter() - start
     info = json.loads((artifact / "artifact.json").read_text())
     timings = json.loads((artifact / TIMINGS_FILE).read_text())

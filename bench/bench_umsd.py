@@ -220,7 +220,8 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         neutral = [c for c in everything if c.style == "neutral" and (test_ids is None or c.id in test_ids)]
         neutral += [c for c in everything if c.style == "neutral" and c not in neutral]
         content = neutral[: args.transfer_clips]
-        artifact = method.prepare(style_spec(args.hold_out, examples[:1]), examples[:1], model_dir, [], work / "style")
+        spec = style_spec(args.hold_out, examples[:1])
+        artifact = method.prepare(spec, examples[:1], model_dir, [], work / "style").folder
         result["transfer"] = {"ddim_steps": args.ddim_steps, "batch_size": 16}
         result["transfer"]["fp32"] = bench_transfer(params, model_dir, artifact, content)
     print(markdown(result))

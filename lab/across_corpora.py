@@ -190,7 +190,7 @@ def stylize(
                 outs = [(i, saved[f"m{n}"]) for n, i in enumerate(facts["source_ids"])]
                 again = [(i, saved[f"v{n}"]) for n, i in enumerate(facts.get("variant_ids") or [])]
             return outs, again if transfer_params is not None else None, facts
-    artifact = method.prepare(spec, examples, prior_base, pool, folder / "artifact")
+    artifact = method.prepare(spec, examples, prior_base, pool, folder / "artifact").folder
     timings = json.loads((artifact / TIMINGS_FILE).read_text())
     info = json.loads((artifact / "artifact.json").read_text())
     model = method.load(artifact, prior_base)

@@ -163,7 +163,7 @@ def transfer(
         )
         start = time.perf_counter()
         folder = args.work / "styles" / f"{style}-{model_dir.name}"
-        artifact = method.prepare(spec, [example], model_dir, sources, folder)  # sources: the content pool
+        artifact = method.prepare(spec, [example], model_dir, sources, folder).folder  # sources: the content pool
         facts["prepare_s"][style] = time.perf_counter() - start
         facts["references"][style] = json.loads((artifact / ARTIFACT_JSON).read_text(encoding="utf-8"))["references"]
         model = method.load(artifact, model_dir)

@@ -16,7 +16,7 @@ import pytest
 from conftest import TWO_STYLES
 
 from motionaug.augment.corpus import Corpus
-from motionaug.augment.methods.base import ARTIFACT_JSON, StyleTransferMethod
+from motionaug.augment.methods.base import ARTIFACT_JSON, StyleTransferMethod, write_timings
 from motionaug.augment.methods.registry import known_methods, method_class
 from motionaug.augment.outputs.checksums import TIMINGS_FILE, sha256_tree
 from motionaug.augment.outputs.run_dir import RunDir
@@ -108,7 +108,9 @@ def test_prepare_checks_its_arguments_once_for_every_method(name: str, corpus: P
     if method.trains:
         with pytest.raises(MotionDataError, match=rf"{name} prepare: needs the trained models"):
             method.prepare(style, [example], None, [], tmp_path / "untrained")
-    else:  # the template records the seconds beside the artefact, outside its checksum
-        folder = method.prepare(style, [example], None, [], tmp_path / "style")
-        assert json.loads((folder / TIMINGS_FILE).read_text())["prepare_s"] >= 0
-        assert sha256_tree(folder)[1] == len([p for p in folder.rglob("*") if p.is_file()]) - 1
+    else:  # whoever runs the step records its seconds beside the artefact, outside its checksum
+        prepared = method.prepare(style, [example], None, [], tmp_path / "style")
+        assert not (prepared.folder / TIMINGS_FILE).exists()
+        write_timings(prepared, 1.5)
+        assert json.loads((prepared.folder / TIMINGS_FILE).read_text())["prepare_s"] == 1.5
+        assert sha256_tree(prepared.folder)[1] == len([p for p in prepared.folder.rglob("*") if p.is_file()]) - 1

@@ -322,7 +322,7 @@ def test_lora_artifact_round_trip_gives_identical_transfers(
     assert info["weights_bytes"] <= 0.05 * info["full_model_bytes"]
     assert (out_dir / ARTIFACT_WEIGHTS).stat().st_size <= 0.05 * info["full_model_bytes"] + 4096
     assert len(info["loss_curve"]) == 4 and "timings" not in info  # wall-clock facts stay out of the artefact
-    assert "finetune_s" in prepared.timings  # the contract's prepare writes them to TIMINGS_FILE
+    assert "finetune_s" in prepared.timings  # the prepare stage writes them to TIMINGS_FILE
     loaded = method.load(out_dir, base_dir)
     content = [clips["walk"], clips["kick"]]
     before, after = model.transfer(content, seed=1), loaded.transfer(content, seed=1)
@@ -380,7 +380,7 @@ def test_full_finetune_artifact_and_base_mismatch(
     method = OnTheFlyMethod(parse_params(FAST, lambda_s=0.0, max_steps=2), text_encoder=HashTextEncoder())
     lookup = {"ex0": clips["proud_walk"]}
     examples = load_style_examples(proud_spec(), lookup)
-    out_dir = method.prepare(proud_spec(), examples, base_dir, [], tmp_path / "full")
+    out_dir = method.prepare(proud_spec(), examples, base_dir, [], tmp_path / "full").folder
     info = json.loads((out_dir / ARTIFACT_JSON).read_text())
     assert info["weights"] == "full" and info["weights_bytes"] == info["full_model_bytes"]
     (out,) = method.load(out_dir, base_dir).transfer([clips["walk"]])
@@ -408,7 +408,7 @@ def test_tempo_retimes_content_and_its_caption_segments_and_is_kept_in_the_artif
 ) -> None:
     method = OnTheFlyMethod(parse_params(FAST, lambda_s=0.0, max_steps=2, tempo=0.5), text_encoder=HashTextEncoder())
     examples = load_style_examples(proud_spec(), {"ex0": clips["proud_walk"]})
-    out_dir = method.prepare(proud_spec(), examples, base_dir, [], tmp_path / "slow")
+    out_dir = method.prepare(proud_spec(), examples, base_dir, [], tmp_path / "slow").folder
     info = json.loads((out_dir / ARTIFACT_JSON).read_text())
     assert info["tempo"] == 0.5 and info["tempo_note"] == "set in the params"
     walk = clips["walk"]
@@ -522,7 +522,7 @@ def _tiny_run(
     method = OnTheFlyMethod(parse_params(raw), text_encoder=HashTextEncoder())
     examples = load_style_examples(proud_spec(), {"ex0": clips["proud_walk"]})
     pool = [clips["walk"], clips["kick"], clips["angry_run"]]
-    artifact = method.prepare(proud_spec(), examples, base_dir, pool, out)
+    artifact = method.prepare(proud_spec(), examples, base_dir, pool, out).folder
     arrays = {f"w/{k}": v.numpy() for k, v in load_file(str(artifact / ARTIFACT_WEIGHTS)).items()}
     loaded = method.load(artifact, base_dir)
     arrays["device"] = np.array(loaded.device.type)

@@ -549,7 +549,7 @@ def test_zero_shot_transfer_of_a_held_out_style(corpus: Path, tmp_path: Path) ->
         examples=[{"source": example.id, "description": "a person walks like an old person"}],
     )
     method.check_style(style, trained)  # any style is allowed
-    artifact = method.prepare(style, [example], trained, [], tmp_path / "style")
+    artifact = method.prepare(style, [example], trained, [], tmp_path / "style").folder
     record = json.loads((artifact / ARTIFACT_JSON).read_text(encoding="utf-8"))
     longest = params["train"]["max_frames"]  # a longer example is cut to the middle of the training crop
     assert record["examples"] == [example.id] and record["example_frames"] == [min(example.n_frames, longest)]
@@ -587,7 +587,7 @@ def test_zero_shot_transfer_of_a_held_out_style(corpus: Path, tmp_path: Path) ->
     stronger = guided.load(artifact, trained).transfer([content[1]], seed=3)[0]
     assert np.isfinite(stronger.motion).all() and not np.allclose(stronger.motion, alone.motion, atol=1e-3)
     short = dataclasses.replace(content[1], id="short", motion=content[1].motion[:longest])
-    itself = guided.prepare(style, [short], trained, [], tmp_path / "itself")
+    itself = guided.prepare(style, [short], trained, [], tmp_path / "itself").folder
     plain = method.load(itself, trained).transfer([short], seed=3)[0].motion
     np.testing.assert_allclose(guided.load(itself, trained).transfer([short], seed=3)[0].motion, plain, atol=1e-4)
     # the moments shaper: the references are picked from the pool, one per example
@@ -597,7 +597,7 @@ def test_zero_shot_transfer_of_a_held_out_style(corpus: Path, tmp_path: Path) ->
         shaped.prepare(style, [example], trained, [broken], tmp_path / "no-pool")
     with pytest.raises(MotionDataError, match="prepared without references"):
         shaped.load(artifact, trained)
-    pooled = shaped.prepare(style, [example], trained, [broken, *content], tmp_path / "pooled")
+    pooled = shaped.prepare(style, [example], trained, [broken, *content], tmp_path / "pooled").folder
     assert json.loads((pooled / ARTIFACT_JSON).read_text(encoding="utf-8"))["references"][0] in {c.id for c in content}
     moved = shaped.load(pooled, trained).transfer([content[1]], seed=3)[0].motion
     assert np.isfinite(moved).all() and np.abs(moved - alone.motion).mean() > 1e-3

@@ -41,7 +41,7 @@ def _clip(clip_id: str, scale: float, offset: float, frames: int = 60, seed: int
 @pytest.fixture()
 def model(tmp_path: Path):
     method = StatsBaselineMethod()
-    artifact = method.prepare(STYLE, [_clip("ex", 2.0, 1.0, 80, seed=1)], None, [], tmp_path / "art")
+    artifact = method.prepare(STYLE, [_clip("ex", 2.0, 1.0, 80, seed=1)], None, [], tmp_path / "art").folder
     assert (artifact / "weights.safetensors").is_file() and (artifact / "artifact.json").is_file()
     return method.load(artifact, None)
 

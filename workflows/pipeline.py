@@ -28,7 +28,7 @@ from pydantic import BaseModel
 
 from motionaug.augment.corpus import Corpus, MotionClip, Reject, write_rejects
 from motionaug.augment.corpus.style_examples import load_style_examples
-from motionaug.augment.methods.base import StyleModel, StyleTransferMethod, TrainingSpec
+from motionaug.augment.methods.base import StyleModel, StyleTransferMethod, TrainingSpec, write_timings
 from motionaug.augment.methods.registry import create_method
 from motionaug.augment.outputs.checksums import sha256_file, sha256_tree
 from motionaug.augment.outputs.run_dir import RunDir
@@ -424,7 +424,10 @@ class PrepareStage(Stage):
         final = self.run_dir.artifact_dir(style_name)
         tmp = final.with_name(f".{style_name}.{uuid.uuid4().hex[:12]}.tmp")
         seed = derive_seed("finetune", self.config.seed, style_name)
-        returned = Path(method.prepare(style, examples, self.trained, content, tmp, seed=seed))
+        started = time.perf_counter()
+        prepared = method.prepare(style, examples, self.trained, content, tmp, seed=seed)
+        write_timings(prepared, time.perf_counter() - started)
+        returned = Path(prepared.folder)
         inner = returned.relative_to(tmp) if returned != tmp else Path()
         publish_dir(tmp, final)
         digest, files = sha256_tree(final)

@@ -8,7 +8,8 @@ Every method declares the same steps on ``StyleTransferMethod``; the workflow as
   when ``is_trained`` says the folder already holds them;
 - ``check_style``: a config-time check of one style against what the method can do;
 - ``prepare``: once per style, an artefact folder (``artifact.json`` + files) from the style's examples; a
-  template that checks its arguments and records its seconds, around the method's ``prepare_style`` (on-the-fly:
+  template that checks its arguments around the method's ``prepare_style`` (the workflow records its seconds;
+  on-the-fly:
   a fine-tuned prior; stats: the example statistics; without per-style learning the default records the style);
 - ``load`` + ``StyleModel.transfer``: a worker loads an artefact once and stylizes batches of clips.
 
@@ -18,7 +19,6 @@ Artefacts are plain files so the workflow can move them between machines.
 from __future__ import annotations
 
 import json
-import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -51,6 +51,13 @@ class Prepared:
 
     folder: Path
     timings: Mapping[str, Any] = field(default_factory=dict)
+
+
+def write_timings(prepared: Prepared, seconds: float) -> None:
+    """``TIMINGS_FILE`` in the artefact folder, outside its checksum: the step's seconds as its runner measured
+    them, and the parts the method timed."""
+    timings = {"prepare_s": seconds, **prepared.timings}
+    atomic_write_text(prepared.folder / TIMINGS_FILE, json.dumps(timings, indent=1, sort_keys=True) + "\n")
 
 
 @dataclass(frozen=True)
@@ -153,21 +160,18 @@ class StyleTransferMethod(ABC):
         out: Path,
         seed: int | None = None,
         progress: Progress | None = None,
-    ) -> Path:
+    ) -> Prepared:
         """Learn ``style`` from its examples (and ``content``, the plan's pool); write the artefact under ``out``.
 
-        A template: the checks every method shares, then ``prepare_style``; the seconds it took, with any timings
-        the method reports, go to ``TIMINGS_FILE`` in the artefact folder, outside its checksum.
+        A template: the checks every method shares, then ``prepare_style``. The artefact folder and the timings the
+        method reports come back; whoever runs the step (the workflow's prepare stage) records them with the
+        seconds it measured (``write_timings``).
         """
         if self.trains and trained is None:
             raise MotionDataError(f"{self.name} prepare", "needs the trained models (the train step's folder)")
         if not examples:
             raise MotionDataError(f"style {style.name!r}", "no example clips")
-        start = time.perf_counter()
-        prepared = self.prepare_style(style, examples, trained, content, Path(out), seed, progress)
-        timings = {"prepare_s": time.perf_counter() - start, **prepared.timings}
-        atomic_write_text(prepared.folder / TIMINGS_FILE, json.dumps(timings, indent=1, sort_keys=True) + "\n")
-        return prepared.folder
+        return self.prepare_style(style, examples, trained, content, Path(out), seed, progress)
 
     def prepare_style(
         self,
