@@ -9,8 +9,7 @@ Every method declares the same steps on ``StyleTransferMethod``; the workflow as
 - ``check_style``: a config-time check of one style against what the method can do;
 - ``prepare``: once per style, an artefact folder (``artifact.json`` + files) from the style's examples; a
   template that checks its arguments around the method's ``prepare_style`` (the workflow records its seconds;
-  on-the-fly:
-  a fine-tuned prior; stats: the example statistics; without per-style learning the default records the style);
+  on-the-fly: a fine-tuned prior; stats: the example statistics; without per-style learning, the style itself);
 - ``load`` + ``StyleModel.transfer``: a worker loads an artefact once and stylizes batches of clips.
 
 Artefacts are plain files so the workflow can move them between machines.
