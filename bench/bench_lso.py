@@ -50,7 +50,7 @@ from motionaug.augment.synth import STYLE_WORDS
 from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.run_config import RunConfig, load_run_config
 from motionaug.schemas.skeleton import T2M
-from motionaug.schemas.styles import StyleExample, StyleSpec
+from motionaug.schemas.styles import StyleExample, StyleSpec, StyleWords
 from motionaug.workflows.ray_executor import execute_run
 
 REPO = Path(__file__).resolve().parents[1]
@@ -58,6 +58,18 @@ RESULTS = REPO / "bench" / "lso"
 NEUTRAL = {"bandai2": "normal", "synthetic": "neutral"}
 CONFIGS = {"bandai2": "bandai2-{method}.yaml", "synthetic": "{method}-synthetic.yaml"}
 DRAWS, K_MAX = 3, 3
+CROSS_DRAWS = 2
+STYLE_JUDGES = ("style", "style_clip")
+CROSS_WORDS = {  # Bandai dataset-1's styles that no Bandai-2 or synthetic style stands for, in caption words
+    "happy": StyleWords(adjective="happy", adverb="happily", phrases=("in a happy way",)),
+    "sad": StyleWords(adjective="sad", adverb="sadly", phrases=("in a sad way",)),
+    "angry": StyleWords(adjective="angry", adverb="angrily", phrases=("in an angry way",)),
+    "proud": StyleWords(adjective="proud", adverb="proudly", phrases=("in a proud way",)),
+    "not-confident": StyleWords(adjective="unsure", adverb="unsurely", phrases=("without confidence",)),
+    "musical": StyleWords(adjective="musical", adverb="rhythmically", phrases=("like a musical performer",)),
+    "giant": StyleWords(adjective="giant", adverb="heavily", phrases=("like a giant",)),
+    "chimpira": StyleWords(adjective="swaggering", adverb="swaggeringly", phrases=("like a street thug",)),
+}
 
 
 def commit() -> str:
@@ -83,6 +95,10 @@ def read_draws(kind: str) -> ExampleDraws:
 def examples_of(draws: ExampleDraws, style: str, draw: int, k: int) -> list[str]:
     """Draw ``draw``'s first ``k`` takes: the k = 1 example is the first of its k = 3 draw."""
     return draws.draws[style][draw][:k]
+
+
+def train_clips(corpus: Path) -> dict[str, MotionClip]:
+    return {c.id: c for c in Corpus(corpus, split="train")}
 
 
 def scored_clips(corpus: Path, kind: str, split: str) -> list[MotionClip]:
@@ -123,16 +139,21 @@ Transfers = dict[tuple[str, int, int], list[tuple[str, np.ndarray]]]
 """(style, draw, k) -> (source id, output features) of every transfer."""
 
 
-def moment_row(args: argparse.Namespace, fold_corpus: Path, draws: ExampleDraws, styles: list[str]) -> Transfers:
+def moment_row(
+    args: argparse.Namespace,
+    fold_corpus: Path,
+    draws: ExampleDraws,
+    styles: list[str],
+    originals: dict[str, MotionClip],
+) -> Transfers:
     """The moment rule on each content clip: posture and amplitude of its k examples against each example's
     nearest plain train clip by root motion (the same reference rule as the shipped shaper), no network."""
     norm = Normalizer(np.load(fold_corpus / "Mean.npy"), np.load(fold_corpus / "Std.npy"))
     plain = {c.id: c.motion for c in Corpus(fold_corpus, split="train") if c.style == NEUTRAL[args.kind]}
-    originals = {c.id: c for c in Corpus(args.corpus, split="train")}
     shaper = output_shapers.create("moments")
     out: Transfers = {}
     for style in styles:
-        for draw in range(DRAWS):
+        for draw in range(len(draws.draws[style])):
             for k in args.k:
                 examples = [originals[i].motion for i in examples_of(draws, style, draw, k)]
                 example = np.concatenate([norm.normalize(e) for e in examples])
@@ -153,19 +174,25 @@ def style_spec(shipped: RunConfig, style: str) -> StyleSpec:
     for spec in shipped.styles:
         if spec.name == style:
             return spec
-    words = STYLE_WORDS[style]
+    words = STYLE_WORDS.get(style) or CROSS_WORDS[style]
     description = f"a person walks {words.adverb}" if words.adverb else f"a person walks {words.phrases[0]}"
     return StyleSpec(name=style, words=words, examples=[StyleExample(source="unused", description=description)])
 
 
-def method_row(args: argparse.Namespace, fold_corpus: Path, draws: ExampleDraws, styles: list[str]) -> Transfers:
+def method_row(
+    args: argparse.Namespace,
+    fold_corpus: Path,
+    draws: ExampleDraws,
+    styles: list[str],
+    originals: dict[str, MotionClip],
+    tag: str = "",
+) -> Transfers:
     """``motionaug run`` of the method's shipped config per (draw, k): trained parts fit on the fold corpus (no
     held-out style), examples given as files, content pool from the fold corpus's train split."""
     shipped = load_run_config(REPO / "configs" / CONFIGS[args.kind].format(method=args.row))
-    originals = {c.id: c for c in Corpus(args.corpus, split="train")}
     example_dir = args.work / "examples"
     out: Transfers = {}
-    for draw in range(DRAWS):
+    for draw in range(len(next(iter(draws.draws.values())))):
         for k in args.k:
             style_specs = []
             for style in styles:
@@ -186,7 +213,7 @@ def method_row(args: argparse.Namespace, fold_corpus: Path, draws: ExampleDraws,
                 "corpus": str(fold_corpus),
                 "pretrain_if_missing": True,  # on-the-fly's prior too is fitted on the fold corpus, never reused
             }
-            data["output"] = str(args.work / args.fold / f"{args.row}-{args.split}-d{draw}-k{k}")
+            data["output"] = str(args.work / args.fold / f"{tag}{args.row}-{args.split}-d{draw}-k{k}")
             data["compute"] |= {"num_cpus": 2}
             config = load_run_config(None, data=data)
             check_held_out(config)
@@ -212,9 +239,9 @@ def run(args: argparse.Namespace) -> None:
             (s, d, k): [(c.id, c.motion) for c in sources] for s in styles for d in range(DRAWS) for k in args.k
         }
     elif args.row == "moments":
-        transfers = moment_row(args, fold_corpus, draws, styles)
+        transfers = moment_row(args, fold_corpus, draws, styles, train_clips(args.corpus))
     else:
-        transfers = method_row(args, fold_corpus, draws, styles)
+        transfers = method_row(args, fold_corpus, draws, styles, train_clips(args.corpus))
     seconds = time.perf_counter() - start
     result = score(args, transfers) | {
         "commit": commit(),
@@ -309,10 +336,140 @@ def gather(args: argparse.Namespace) -> None:
             )
 
 
+# ---- across datasets: dataset-1 styles no trained part has seen, on Bandai-2 test takes -------------------------
+
+
+def cross_setup(args: argparse.Namespace) -> None:
+    """Draws (2 per style, k = 1, a walk take first) from Bandai dataset-1, and a judge fitted on dataset-1 without
+    the example takes, with its leave-one-content-out accuracy."""
+    view = TrainView(args.novel, [], split="all")
+    path = RESULTS / "cross-draws.json"
+    if not path.is_file():
+        draw_examples(view, list(CROSS_WORDS), k=1, n_draws=CROSS_DRAWS, seed=args.seed).write(path)
+    draws = ExampleDraws.model_validate_json(path.read_text(encoding="utf-8"))
+    clips = [c for c in view if take_of(c.id) not in draws.takes()]
+    torch.set_num_threads(args.threads)
+    loco: dict[str, dict[str, float]] = {}
+    for content in sorted({c.content for c in clips if c.content}):
+        log(f"cross judge without content {content}")
+        train = [c for c in clips if c.content != content]
+        folder = args.work / "cross-loco" / content
+        judges = fit_judges(train, folder, epochs=args.judge_epochs, seed=args.seed, which=STYLE_JUDGES)
+        for name in ("style", "style_clip"):
+            held = [c for c in clips if c.content == content and c.style in judges.labels(name)]
+            read, _ = judges.predict(name, [c.motion for c in held])
+            right = [judges.labels(name)[int(i)] == c.style for i, c in zip(read, held)]
+            loco.setdefault(name, {})[content] = float(np.mean(right)) if right else float("nan")
+    fit_judges(clips, args.work / "cross-judges", epochs=args.judge_epochs, seed=args.seed, which=STYLE_JUDGES)
+    summary = {
+        "commit": commit(),
+        "train_clips": len(clips),
+        "epochs": args.judge_epochs,
+        "loco_accuracy": {name: float(np.nanmean(list(v.values()))) for name, v in loco.items()},
+        "loco_by_content": loco,
+    }
+    atomic_write_text(RESULTS / "cross-judges.json", json.dumps(summary, indent=1) + "\n")
+
+
+def cross_run(args: argparse.Namespace) -> None:
+    """One row of the cross-dataset table: fold 1's trained parts (the method's, on the fold corpus), each dataset-1
+    style learnt from its example, applied to the Bandai-2 ``normal`` takes of the split."""
+    draws = ExampleDraws.model_validate_json((RESULTS / "cross-draws.json").read_text(encoding="utf-8"))
+    fold_corpus = args.work / args.fold / "corpus"
+    styles = list(CROSS_WORDS)
+    novel = {c.id: c for c in Corpus(args.novel, split="all")}
+    start = time.perf_counter()
+    args.k = [1]
+    if args.row == "content":
+        sources = blind(scored_clips(args.corpus, args.kind, args.split))
+        transfers = {(s, d, 1): [(c.id, c.motion) for c in sources] for s in styles for d in range(CROSS_DRAWS)}
+    elif args.row == "moments":
+        transfers = moment_row(args, fold_corpus, draws, styles, novel)
+    else:
+        transfers = method_row(args, fold_corpus, draws, styles, novel, tag="cross-")
+    seconds = time.perf_counter() - start
+    style_judges = load_judges(args.work / "cross-judges")
+    content_judges = load_judges(args.work / "judges")
+    content_of = {c.id: c.content for c in Corpus(args.corpus, split=args.split)}
+    units = []
+    for (style, draw, k), outputs in sorted(transfers.items()):
+        motions = [m for _, m in outputs]
+        read = {n: style_judges.predict(n, motions)[0] for n in ("style", "style_clip")}
+        read |= {n: content_judges.predict(n, motions)[0] for n in ("content", "content_pose")}
+        units.append(
+            {
+                "style": style,
+                "draw": draw,
+                "k": k,
+                "sources": [src for src, _ in outputs],
+                "truth_content": [content_of[src] for src, _ in outputs],
+                "read": {
+                    n: [(style_judges if n.startswith("style") else content_judges).labels(n)[int(i)] for i in r]
+                    for n, r in read.items()
+                },
+                "skating": mean_foot_skating([features_to_joints(m) for m in motions], T2M, 20.0),
+            }
+        )
+    result = {
+        "units": units,
+        "commit": commit(),
+        "row": args.row,
+        "fold": args.fold,
+        "split": args.split,
+        "seconds": round(seconds, 1),
+    }
+    path = RESULTS / f"cross-{args.fold}-{args.row}-{args.split}.json"
+    atomic_write_text(path, json.dumps(result, indent=None, separators=(",", ":")) + "\n")
+    log(f"wrote {path}")
+
+
+def cross_rate(units: list[dict[str, Any]], judge: str, walk_run: bool = False) -> float:
+    """Top-1 SRA of ``judge`` over every transfer, or over those of walk and run takes only."""
+    hits = [
+        r == u["style"]
+        for u in units
+        for r, t in zip(u["read"][judge], u["truth_content"])
+        if not walk_run or t in ("walk", "run")
+    ]
+    return float(np.mean(hits))
+
+
+def cross_gather(args: argparse.Namespace) -> None:
+    judges = json.loads((RESULTS / "cross-judges.json").read_text(encoding="utf-8"))
+    loco = judges["loco_accuracy"]
+    print(
+        f"judge on dataset-1 ({judges['train_clips']} clips): leave-one-content-out accuracy "
+        f"j1 {loco['style']:.1%}, j2 {loco['style_clip']:.1%}"
+    )
+    print("| row | SRA j1 | SRA j2 | SRA j1 walk/run | SRA j2 walk/run | CRA c1 | CRA c2 | most read (j1) | s |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for path in sorted(RESULTS.glob(f"cross-fold*-*-{args.split}.json")):
+        result = json.loads(path.read_text(encoding="utf-8"))
+        units = result["units"]
+
+        cra = {
+            n: float(np.mean([r == t for u in units for r, t in zip(u["read"][n], u["truth_content"])]))
+            for n in ("content", "content_pose")
+        }
+        read = defaultdict(int)
+        for u in units:
+            for r in u["read"]["style"]:
+                read[r] += 1
+        top = max(read, key=read.__getitem__)
+        share = read[top] / sum(read.values())
+        print(
+            f"| {result['row']} | {cross_rate(units, 'style'):.1%} | {cross_rate(units, 'style_clip'):.1%} "
+            f"| {cross_rate(units, 'style', True):.1%} | {cross_rate(units, 'style_clip', True):.1%} "
+            f"| {cra['content']:.1%} | {cra['content_pose']:.1%} "
+            f"| {top} {share:.0%} | {result['seconds']:.0f} |"
+        )
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("command", choices=["setup", "run", "gather"])
+    parser.add_argument("command", choices=["setup", "run", "gather", "cross-setup", "cross", "cross-gather"])
     parser.add_argument("--corpus", type=Path)
+    parser.add_argument("--novel", type=Path, help="cross: the Bandai dataset-1 corpus (import-bvh, no split)")
     parser.add_argument("--kind", choices=sorted(LSO_FOLDS), default="bandai2")
     parser.add_argument("--work", type=Path)
     parser.add_argument("--fold", default="fold1")
@@ -324,7 +481,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--judge-epochs", type=int, default=40)
     parser.add_argument("--draws-only", action="store_true", help="setup: fix the example draws, fit no judges yet")
     args = parser.parse_args(argv)
-    {"setup": setup, "run": run, "gather": gather}[args.command](args)
+    commands = {"setup": setup, "run": run, "gather": gather}
+    commands |= {"cross-setup": cross_setup, "cross": cross_run, "cross-gather": cross_gather}
+    commands[args.command](args)
 
 
 if __name__ == "__main__":

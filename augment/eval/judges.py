@@ -109,8 +109,10 @@ def fit_judges(
     max_frames: int = 196,
     seed: int = 0,
     held_out: Sequence[MotionClip] = (),
+    which: Sequence[str] = JUDGES,
 ) -> Judges:
-    """Fit the four judges on labelled ``train`` clips (the caller leaves the example takes out) and save them.
+    """Fit the judges ``which`` (all four by default) on labelled ``train`` clips (the caller leaves the example
+    takes out) and save them.
 
     ``held_out`` labelled clips, when given, measure each judge's per-label accuracy on real takes.
     """
@@ -122,7 +124,9 @@ def fit_judges(
     labels |= {"style_clip": labels["style"], "content_pose": labels["content"]}
     models: dict[str, MotionClassifier] = {}
     accuracy: dict[str, dict[str, float]] = {}
-    for name in JUDGES:
+    for name in which:
+        if name not in JUDGES:
+            raise MotionDataError("judges", f"no judge {name!r}; the judges are {', '.join(JUDGES)}")
         attr = "style" if name.startswith("style") else "content"
         names = labels[name]
         if len(names) < 2:
@@ -168,7 +172,7 @@ def load_judges(folder: Path) -> Judges:
     """The judges saved by ``fit_judges``."""
     info = read_json_model(folder / JUDGES_JSON, JudgesInfo, "a judges folder (the held-out protocol)")
     models = {}
-    for name in JUDGES:
+    for name in info.configs:
         model = MotionClassifier(ClassifierConfig(**info.configs[name]))
         load_module(model, folder / f"{name}.safetensors")
         models[name] = model.eval()
