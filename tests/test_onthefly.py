@@ -19,11 +19,15 @@ from safetensors.torch import load_file, save_file
 from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.corpus.rejects import Reject
 from motionaug.augment.corpus.style_examples import load_style_examples
+from motionaug.augment.diffusion import start_step_for
 from motionaug.augment.methods.base import ARTIFACT_JSON, ARTIFACT_WEIGHTS
+from motionaug.augment.methods.hooks import SamplerCallback, sampler_callbacks
+from motionaug.augment.methods.hooks import SamplerStep as HookStep
 from motionaug.augment.methods.onthefly import (
     ContentPool,
     MotionBatch,
     OnTheFlyMethod,
+    OnTheFlyModel,
     WeightAverage,
     finetune,
     kept_channels,
@@ -240,6 +244,34 @@ def test_foot_lock_rewrites_only_the_root_path_of_the_output(base: BaseModels, c
     assert isinstance(plain, TransferOutput) and isinstance(locked, TransferOutput)
     np.testing.assert_array_equal(locked.motion, lock_feet(plain.motion))  # the post-process, nothing else
     np.testing.assert_array_equal(locked.motion[:, 4:193], plain.motion[:, 4:193])  # poses untouched
+
+
+@sampler_callbacks.register("test-halve-x0")
+class HalveX0(SamplerCallback):
+    """Halves every x0 prediction and counts its calls: a stand-in for a lab sampler callback."""
+
+    calls = 0
+
+    def __call__(self, step: HookStep) -> torch.Tensor:
+        HalveX0.calls += 1
+        assert step.x0.shape == step.x_t.shape and step.mask.shape == step.x0.shape[:2]
+        return step.x0 * 0.5
+
+
+def test_sampler_callbacks_reach_on_the_flys_transfer(base: BaseModels, clips: dict[str, MotionClip]) -> None:
+    """The hooks family UMSD uses plugs into on-the-fly's sampler too: no callback, the same bytes as before."""
+    method = OnTheFlyMethod(parse_params(FAST, lambda_s=0.0, max_steps=2), text_encoder=HashTextEncoder())
+    model, _, _, _ = method.fit(proud_spec(), [clips["proud_walk"]], base, corpus=[])
+    (plain,) = model.transfer([clips["walk"]], seed=3)
+    hooked = OnTheFlyModel(
+        proud_spec(), base, model.model, model.params.model_copy(update={"callbacks": ["test-halve-x0"]})
+    )
+    (halved,) = hooked.transfer([clips["walk"]], seed=3)
+    steps = start_step_for(model.params.transfer_noise_step, model.params.ddim_steps)
+    assert isinstance(plain, TransferOutput) and isinstance(halved, TransferOutput)
+    assert HalveX0.calls == steps and not np.allclose(halved.motion, plain.motion, atol=1e-3)
+    (again,) = model.transfer([clips["walk"]], seed=3)
+    np.testing.assert_array_equal(again.motion, plain.motion)
 
 
 def test_inpaint_feet_keeps_the_contents_foot_contacts(base: BaseModels, clips: dict[str, MotionClip]) -> None:

@@ -5,7 +5,8 @@ timesteps; ``start_step=n`` noises ``x_start`` to respaced index ``n - 1`` and r
 (``schedule.start_step_for`` converts a training timestep). The last step returns the x0 prediction itself (exactly
 the posterior mean there), which keeps inpainted channels bit-exact. Hooks: ``inpaint`` (channels/frames of every
 x0 prediction replaced by a reference, no noise added there; Hu et al. 2024 Eqs. 3-5), ``guidance_scale``
-(classifier-free guidance), ``progress`` (per-step callback).
+(classifier-free guidance), ``x0_hook`` (``hook(t, x0_hat, x_t) -> x0_hat``: every step's x0 prediction, after
+inpainting, goes through it; the methods' sampler callbacks), ``progress`` (per-step callback).
 """
 
 from __future__ import annotations
@@ -53,6 +54,10 @@ class InpaintSpec:
             raise MotionDataError("InpaintSpec", f"frame mask shape {tuple(frames.shape)} != ({b}, {t})")
         chan = chan.to(self.reference.device)
         return frames.to(self.reference.device)[:, :, None] & chan[None, None, :]
+
+
+X0Hook = Callable[[int, Tensor, Tensor], Tensor]
+"""``hook(t, x0_hat, x_t) -> x0_hat``: the training timestep, the step's x0 prediction and its input."""
 
 
 @dataclass(frozen=True)
@@ -246,10 +251,13 @@ def _loop(
     inpaint_t: tuple[Tensor, Tensor] | None,
     progress: ProgressFn | None,
     generator: torch.Generator | None,
+    x0_hook: X0Hook | None = None,
 ) -> Tensor:
-    """The shared reverse loop: predict x0 at each index n_run-1..0, then apply ``update``."""
+    """The shared reverse loop: predict x0 at each index n_run-1..0 (through ``x0_hook``), then apply ``update``."""
     for index in range(n_run - 1, -1, -1):
         x0_hat = _predict_x0(model_fn, sched, x, index, guidance_scale, inpaint_t)
+        if x0_hook is not None:
+            x0_hat = x0_hook(int(sched.timesteps[index]), x0_hat, x)
         x = update(x, x0_hat, index, generator)
         if progress is not None:
             progress(SamplerStep(index, n_run, int(sched.timesteps[index]), x, x0_hat))
@@ -272,6 +280,7 @@ def ddpm_sample(
     generator: torch.Generator | None = None,
     dtype: torch.dtype = torch.float32,
     device: torch.device | str | None = None,
+    x0_hook: X0Hook | None = None,
 ) -> Tensor:
     """DDPM ancestral sampling (fixed-small variance), all 1000 steps unless ``steps`` respaces. Returns (B, T, D)."""
     sched, x, n_run, inpaint_t = _prepare(
@@ -282,7 +291,7 @@ def ddpm_sample(
         z = _noise(x_t.shape, x_t, gen, inpaint_t) if index > 0 else None
         return ddpm_step(sched, x_t, x0_hat, index, z)
 
-    return _loop(model_fn, sched, x, n_run, update, guidance_scale, inpaint_t, progress, generator)
+    return _loop(model_fn, sched, x, n_run, update, guidance_scale, inpaint_t, progress, generator, x0_hook)
 
 
 @torch.no_grad()
@@ -302,6 +311,7 @@ def ddim_sample(
     generator: torch.Generator | None = None,
     dtype: torch.dtype = torch.float32,
     device: torch.device | str | None = None,
+    x0_hook: X0Hook | None = None,
 ) -> Tensor:
     """DDIM sampling over ``steps`` respaced timesteps (eta=0: deterministic given the initial noise).
 
@@ -315,7 +325,7 @@ def ddim_sample(
         z = _noise(x_t.shape, x_t, gen, inpaint_t) if index > 0 and eta > 0 else None
         return ddim_step(sched, x_t, x0_hat, index, eta, z)
 
-    return _loop(model_fn, sched, x, n_run, update, guidance_scale, inpaint_t, progress, generator)
+    return _loop(model_fn, sched, x, n_run, update, guidance_scale, inpaint_t, progress, generator, x0_hook)
 
 
 def ddim_path(

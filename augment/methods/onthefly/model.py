@@ -20,6 +20,7 @@ from motionaug.augment.corpus.rejects import Reject
 from motionaug.augment.corpus.style_examples import check_motion
 from motionaug.augment.device import bf16_autocast
 from motionaug.augment.diffusion import DenoiseFn, bind_model, contrast_guided, ddim_sample, start_step_for
+from motionaug.augment.diffusion.samplers import X0Hook
 from motionaug.augment.methods.common import (
     MotionBatch,
     caption_text,
@@ -35,6 +36,7 @@ from motionaug.augment.methods.common import (
     seeded_generator,
     style_vocab,
 )
+from motionaug.augment.methods.hooks import SamplerStep, sampler_callbacks
 from motionaug.augment.methods.onthefly.pairs import kept_channels, neutral_twins
 from motionaug.augment.methods.onthefly.params import OnTheFlyRecipe
 from motionaug.augment.motion.foot_lock import lock_feet
@@ -81,6 +83,7 @@ class OnTheFlyModel:
         self.params = params
         self.batch_size = batch_size or params.batch_size
         self.vocab = style_vocab(style.words, style.name)
+        self.callbacks = sampler_callbacks.create_all(params.callbacks, "config method.params.callbacks")
 
     def _job(self, index: int, clip: MotionClip, seed: int) -> _Job:
         """Validate a clip and revise its captions; any ``MotionDataError`` here rejects just this clip."""
@@ -152,10 +155,21 @@ class OnTheFlyModel:
                 inpaint=content.inpaint(kept_channels(self.params)),
                 guidance_scale=None,
                 device=self.device,
+                x0_hook=self._x0_hook(content.mask) if self.callbacks else None,
             ).float()
         scores = self._scores(out, content.mask, cond, jobs)
         out = out.cpu()
         return [self._output(j, out[i, : j.motion.shape[0]], scores[i]) for i, j in enumerate(jobs)]
+
+    def _x0_hook(self, mask: Tensor) -> X0Hook:
+        """Every sampling step's x0 prediction through the configured sampler callbacks, in order."""
+
+        def hook(t: int, x0: Tensor, x_t: Tensor) -> Tensor:
+            for callback in self.callbacks:
+                x0 = callback(SamplerStep(t, x0, x_t, mask))
+            return x0
+
+        return hook
 
     def _scores(self, out: Tensor, mask: Tensor, style_embed: Tensor, jobs: Sequence[_Job]) -> list[dict[str, float]]:
         """Per clip: cosine to the revised caption (style), to the original caption (content), foot skating."""

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 from typing import Any, Literal, TypeVar
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from motionaug.augment.diffusion.schedule import NUM_TRAIN_TIMESTEPS
+from motionaug.augment.methods.hooks import HookSpec, sampler_callbacks
 from motionaug.augment.motion.tempo import TEMPO_RANGE
 from motionaug.models.lora import DEFAULT_TARGETS as LORA_TARGETS
 from motionaug.schemas.errors import MotionDataError, first_error
@@ -86,11 +87,21 @@ class OnTheFlyParams(BaseModel):
         "examples (augment.motion.tempo); 'content' keeps the content's clock (the paper); a number sets it "
         "(below 1: slower).",
     )
+    callbacks: list[HookSpec] = Field(
+        default_factory=list,
+        description="Sampler callbacks by name (augment.methods.hooks) called on every transfer step's x0 prediction, "
+        "in order; none by default.",
+    )
     min_frames: int = 20
     bf16: bool | None = Field(
         None, description="bf16 autocast; None = on CUDA (tensor cores) and on CPUs with bf16 units, else fp32."
     )
     seed: int = 0
+
+    @field_validator("callbacks")
+    @classmethod
+    def _known_callbacks(cls, specs: list[HookSpec]) -> list[HookSpec]:
+        return sampler_callbacks.checked(specs)
 
     @model_validator(mode="before")
     @classmethod
