@@ -322,7 +322,46 @@ def summary(result: dict[str, Any], k: int) -> dict[str, float]:
     return out
 
 
+ROW_ORDER = ("content", "moments", "stats", "onthefly", "erd", "umsd")
+
+
+def gather_wide(args: argparse.Namespace) -> None:
+    """One line per row: each figure as ``k1/k3`` for fold 1, then for fold 2 (``-`` where a unit has not run)."""
+    found: dict[str, dict[str, dict[str, Any]]] = defaultdict(dict)
+    for path in sorted(RESULTS.glob(f"{args.kind}-fold*-*-{args.split}.json")):
+        result = json.loads(path.read_text(encoding="utf-8"))
+        found[result["row"]][result["fold"]] = result
+    columns = [
+        ("sra_style", "{:.1f}", 100),
+        ("sra_style_clip", "{:.1f}", 100),
+        ("cra_content", "{:.1f}", 100),
+        ("cra_content_pose", "{:.1f}", 100),
+        ("worst_style_sra_style_clip", "{:.0f}", 100),
+        ("fmd_ratio", "{:.1f}", 1),
+        ("skating_ratio", "{:.1f}", 1),
+    ]
+    head = ["row (fold 1 k1/k3; fold 2 k1/k3)", "SRA j1 %", "SRA j2 %", "CRA c1 %", "CRA c2 %", "worst j2 %"]
+    print("| " + " | ".join([*head, "FMD/floor", "skate"]) + " |")
+    print("|---|---|---|---|---|---|---|---|")
+    for row in sorted(found, key=lambda r: ROW_ORDER.index(r) if r in ROW_ORDER else len(ROW_ORDER)):
+        cells = []
+        for key, fmt, scale in columns:
+            folds = []
+            for fold in ("fold1", "fold2"):
+                result = found[row].get(fold)
+                if result is None:
+                    folds.append("-")
+                    continue
+                values = (fmt.format(summary(result, k)[key] * scale) for k in (1, 3))
+                folds.append("/".join("100" if v == "100.0" else v for v in values))
+            cells.append("; ".join(folds))
+        print(f"| {row} | " + " | ".join(cells) + " |")
+
+
 def gather(args: argparse.Namespace) -> None:
+    if args.wide:
+        gather_wide(args)
+        return
     print("| fold | row | k | SRA j1 | SRA j2 | CRA c1 | CRA c2 | worst style j2 | FMD / floor | skating / real | s |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for path in sorted(RESULTS.glob(f"{args.kind}-fold*-*-{args.split}.json")):
@@ -479,6 +518,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--judge-epochs", type=int, default=40)
+    parser.add_argument("--wide", action="store_true", help="gather: one line per row, both folds, k = 1 and 3")
     parser.add_argument("--draws-only", action="store_true", help="setup: fix the example draws, fit no judges yet")
     args = parser.parse_args(argv)
     commands = {"setup": setup, "run": run, "gather": gather}
