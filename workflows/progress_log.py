@@ -125,8 +125,8 @@ class Heartbeat:
     def update(self, stage: str, done: int, total: int, metrics: dict[str, float] | None = None) -> None:
         with self._lock:
             if stage != self.stage:
-                if self.stage is not None and self.done < self.total:
-                    self._say(self.line())  # the last state of a stage left early
+                if self.stage is not None and (not self.total or self.done < self.total):
+                    self._say(self.line())  # the last state of a stage left early, or of one of unknown size
                 self.stage, self.stage_started, self.first = stage, self.clock(), done
                 self._say(f"{self.command} {stage} {_count(done, total)} {self.unit}: started")
             self.done, self.total, self.metrics = done, total, dict(metrics or {})
