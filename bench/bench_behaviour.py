@@ -79,7 +79,8 @@ def run_config(name: str, root: Path, corpus: Path, work: Path) -> list[str]:
         example = next(c for c in clips if c.style == style_name)
         spec = {"adjective": style_name}
         style = StyleSpec(name=style_name, words=spec, examples=[{"source": example.id, "description": "a walk"}])
-        artifact = method.prepare(style, [example], trained, content[:8], work / style_name, seed=0).folder
+        prepared = method.prepare(style, [example], trained, content[:8], work / style_name, seed=0)
+        artifact = Path(getattr(prepared, "folder", prepared))  # a tree before prepare returned its timings too
         model = method.load(artifact, trained)
         outputs = model.transfer(content[:6], seed=0)
         done = [o for o in outputs if hasattr(o, "motion")]
