@@ -76,6 +76,13 @@ def commit() -> str:
     return subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True).stdout.strip()
 
 
+def write_unit(name: str, result: dict[str, Any]) -> None:
+    """A unit's results file under ``bench/lso/`` (compact JSON: it holds every per-clip reading)."""
+    path = RESULTS / f"{name}.json"
+    atomic_write_text(path, json.dumps(result, indent=None, separators=(",", ":")) + "\n")
+    log(f"wrote {path}")
+
+
 def log(message: str) -> None:
     print(f"[{time.strftime('%H:%M:%S')}] {message}", file=sys.stderr, flush=True)
 
@@ -253,9 +260,7 @@ def run(args: argparse.Namespace) -> None:
         "seed": args.seed,
         "seconds": round(seconds, 1),
     }
-    path = RESULTS / f"{args.kind}-{args.fold}-{args.row}-{args.split}.json"
-    atomic_write_text(path, json.dumps(result, indent=None, separators=(",", ":")) + "\n")
-    log(f"wrote {path}")
+    write_unit(f"{args.kind}-{args.fold}-{args.row}-{args.split}", result)
 
 
 def fmd_or_none(a: np.ndarray, b: np.ndarray, seed: int) -> tuple[float | None, int]:
@@ -457,9 +462,7 @@ def cross_run(args: argparse.Namespace) -> None:
         "split": args.split,
         "seconds": round(seconds, 1),
     }
-    path = RESULTS / f"cross-{args.fold}-{args.row}-{args.split}.json"
-    atomic_write_text(path, json.dumps(result, indent=None, separators=(",", ":")) + "\n")
-    log(f"wrote {path}")
+    write_unit(f"cross-{args.fold}-{args.row}-{args.split}", result)
 
 
 def cross_rate(units: list[dict[str, Any]], judge: str, walk_run: bool = False) -> float:
