@@ -9,6 +9,7 @@ and fits the judges on the train split without any draw's takes; both are writte
 unit is one (corpus, fold, row, split): the held-out ``normal`` takes of the split go into each of the fold's styles
 for each draw and k, and the per-clip judge readings are written to ``bench/lso/`` (committed). Rows: ``content``
 (the untouched clip), ``moments`` (the moment rule on the content clip, no network: the control of that step),
+``foot_lock`` (on-the-fly's foot lock on the content clip, the control of that step),
 and the methods through ``motionaug run`` with trained parts fitted on the corpus without the fold's styles.
 """
 
@@ -45,6 +46,7 @@ from motionaug.augment.methods.hooks import ShapeContext, output_shapers
 from motionaug.augment.methods.umsd.method import nearest_root_motion
 from motionaug.augment.metrics import matched_fmd, mean_foot_skating
 from motionaug.augment.motion.features import Normalizer, features_to_joints
+from motionaug.augment.motion.foot_lock import lock_feet
 from motionaug.augment.outputs.shards import iter_shard_rows, row_motion
 from motionaug.augment.synth import STYLE_WORDS
 from motionaug.schemas.errors import MotionDataError
@@ -240,11 +242,13 @@ def run(args: argparse.Namespace) -> None:
     torch.set_num_threads(args.threads)
     start = time.perf_counter()
     styles = list(fold.held_out)
-    if args.row == "content":
-        sources = blind(scored_clips(args.corpus, args.kind, args.split))
-        transfers = {
-            (s, d, k): [(c.id, c.motion) for c in sources] for s in styles for d in range(DRAWS) for k in args.k
-        }
+    if args.row in ("content", "foot_lock"):
+        # foot_lock: on-the-fly's shipped post-process on the content clip, no network (its control row)
+        sources = [
+            (c.id, lock_feet(c.motion) if args.row == "foot_lock" else c.motion)
+            for c in blind(scored_clips(args.corpus, args.kind, args.split))
+        ]
+        transfers = {(s, d, k): sources for s in styles for d in range(DRAWS) for k in args.k}
     elif args.row == "moments":
         transfers = moment_row(args, fold_corpus, draws, styles, train_clips(args.corpus))
     else:
@@ -327,7 +331,7 @@ def summary(result: dict[str, Any], k: int) -> dict[str, float]:
     return out
 
 
-ROW_ORDER = ("content", "moments", "stats", "onthefly", "erd", "umsd")
+ROW_ORDER = ("content", "moments", "foot_lock", "stats", "onthefly", "erd", "umsd")
 
 
 def gather_wide(args: argparse.Namespace) -> None:
