@@ -70,7 +70,9 @@ def run_config(name: str, root: Path, corpus: Path, work: Path) -> list[str]:
     clips = list(Corpus(corpus))
     trained = None
     if method.trains:
-        trained = method.train(corpus, work / "trained", TrainingSpec(size="tiny", options={}, seed=0))
+        older = "options" in TrainingSpec.__dataclass_fields__  # a baseline commit before the settings moved
+        spec = TrainingSpec(size="tiny", seed=0, **({"options": {}} if older else {}))
+        trained = method.train(corpus, work / "trained", spec)
     lines = []
     content = [c for c in clips if c.style == "neutral" and c.n_frames >= 40]
     for style_name in STYLES:

@@ -71,7 +71,7 @@ def bench_training(method: UmsdMethod, corpus: Path, model_dir: Path, size: str)
     load_before = list(os.getloadavg())
     reused = method.is_trained(model_dir)
     start = time.perf_counter()
-    method.train(corpus, model_dir, TrainingSpec(size=size, options={}, seed=0), progress)
+    method.train(corpus, model_dir, TrainingSpec(size=size, seed=0), progress)
     seconds = time.perf_counter() - start
     info = read_artifact(model_dir)
     return {

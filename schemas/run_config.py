@@ -137,47 +137,34 @@ class FanOutConfig(_Strict):
 
 
 class BaseModelsConfig(_Strict):
-    """Where the method's base models are. A ``path`` that holds base models is used as it is (e.g. an imported
-    MDM checkpoint); otherwise they are pre-trained there, and reused on later runs while corpus and config match."""
+    """Where the method's once-per-run models are and what they train on; how they train is the method's own
+    setting (``method.params.train``). A ``path`` that holds trained models is used as it is (e.g. an imported MDM
+    checkpoint); otherwise they are trained there, and reused on later runs while corpus and settings match."""
 
-    path: Path | None = Field(default=None, description="Pre-trained base models; None: <run>/base_models.")
+    path: Path | None = Field(default=None, description="The trained models; None: <run>/base_models.")
     corpus: Path | None = Field(
         default=None, description="Labelled corpus the method trains on (its train split); None: the run's corpus."
     )
     pretrain_if_missing: bool = True
-    size: Literal["tiny", "small", "paper"] = "small"
-    pretrain: dict[str, Any] = Field(
-        default_factory=dict, description="Overrides of the size's pre-training preset (e.g. prior_time_s)."
-    )
-    from_mdm: Path | None = Field(
-        default=None,
-        description="Official MDM humanml trans_enc checkpoint used as the prior: only the motion encoder and "
-        "evaluators are trained (docs/humanml3d.md).",
-    )
-    clip_weights: Path | None = Field(default=None, description="CLIP ViT-B/32 weights for from_mdm (never fetched).")
-    mdm_stats: Path | None = Field(default=None, description="Folder with the prior's HumanML3D Mean/Std.npy.")
+    size: Literal["tiny", "small", "paper"] = Field("small", description="The size of the method's networks.")
 
-    @model_validator(mode="after")
-    def _mdm_paths_in_pretrain(self) -> BaseModelsConfig:
-        """Pre-training reads its options from ``pretrain``: the MDM paths are kept there too, in step."""
-        for name in MDM_FIELDS:
-            field, given = getattr(self, name), self.pretrain.get(name)
-            if field is not None and given is not None and Path(given) != field:
-                raise ValueError(f"{name} is given twice with different values ({field} and pretrain.{name} {given})")
-            if field is None and given is not None:
-                object.__setattr__(self, name, Path(given))
-            elif field is not None:
-                self.pretrain = {**self.pretrain, name: str(field)}
-        return self
+    @model_validator(mode="before")
+    @classmethod
+    def _moved(cls, data: Any) -> Any:
+        """Pre-training settings moved to the method's params: one line saying where, not a bare 'extra field'."""
+        if isinstance(data, dict):
+            for name in MOVED_TO_METHOD:
+                if name in data:
+                    where = "method.params.train" if name == "pretrain" else f"method.params.train.{name}"
+                    raise ValueError(f"{name} moved: the method's training settings are {where} now")
+        return data
 
     def resolved(self, absolute: Any) -> BaseModelsConfig:
-        """Every path made absolute with ``absolute`` (the MDM ones inside ``pretrain`` too)."""
-        paths = {name: absolute(getattr(self, name)) for name in ("path", "corpus", *MDM_FIELDS)}
-        pretrain = {k: v for k, v in self.pretrain.items() if k not in MDM_FIELDS}
-        return BaseModelsConfig.model_validate({**self.model_dump(), **paths, "pretrain": pretrain})
+        """Every path made absolute with ``absolute``."""
+        return self.model_copy(update={"path": absolute(self.path), "corpus": absolute(self.corpus)})
 
 
-MDM_FIELDS = ("from_mdm", "clip_weights", "mdm_stats")
+MOVED_TO_METHOD = ("pretrain", "from_mdm", "clip_weights", "mdm_stats")
 
 
 class ComputeConfig(_Strict):

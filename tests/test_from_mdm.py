@@ -193,7 +193,7 @@ def test_pretrain_from_mdm_then_pairs_and_transfer(
 
 @pytest.mark.slow
 def test_run_config_from_mdm_on_ray(corpus: Path, clip_files: tuple[Path, dict], tmp_path: Path) -> None:
-    """MDM's own training loop drops clip_model.*: the CLIP file comes from base_models.clip_weights."""
+    """MDM's own training loop drops clip_model.*: the CLIP file comes from method.params.train.clip_weights."""
     import ray
 
     from motionaug.workflows.pipeline import check_config
@@ -205,13 +205,12 @@ def test_run_config_from_mdm_on_ray(corpus: Path, clip_files: tuple[Path, dict],
     data = {
         "corpus": {"path": str(corpus), "filters": {"source_styles": ["neutral"], "min_frames": 40}},
         "styles": copy.deepcopy(TWO_STYLES[:1]),
-        "method": {"name": "onthefly", "params": OnTheFlyMethod.smoke_params},
-        "base_models": {
-            "size": "tiny",
-            "from_mdm": str(checkpoint),
-            "clip_weights": str(folder / "ViT-B-32.pt"),
-            "pretrain": STEPS,
+        "method": {
+            "name": "onthefly",
+            "params": OnTheFlyMethod.smoke_params
+            | {"train": {"from_mdm": str(checkpoint), "clip_weights": str(folder / "ViT-B-32.pt"), **STEPS}},
         },
+        "base_models": {"size": "tiny"},
         "compute": {"num_cpus": 2, "batch_size": 4, "unit_size": 8},
         "output": str(tmp_path / "run"),
     }

@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 from pydantic import BaseModel
 
+from motionaug.augment.methods.base import TrainingSpec
 from motionaug.augment.methods.erd import ErdTrain, ErdTrainConfig
 from motionaug.augment.methods.registry import method_class
 from motionaug.schemas.errors import MotionDataError
@@ -69,7 +70,7 @@ def test_on_the_fly_artefacts_made_before_a_setting_left_still_load() -> None:
 def test_on_the_flys_recipe_only_settings_are_refused_in_a_config_and_kept_in_its_artefacts() -> None:
     from motionaug.augment.methods.onthefly.params import RECIPE_ONLY, OnTheFlyParams, OnTheFlyRecipe, parse_params
 
-    assert not set(RECIPE_ONLY) & set(OnTheFlyParams.model_fields) and len(OnTheFlyParams.model_fields) == 24
+    assert not set(RECIPE_ONLY) & set(OnTheFlyParams.model_fields) and len(OnTheFlyParams.model_fields) == 25
     with pytest.raises(MotionDataError, match=r"method\.params\.inpaint_feet: onthefly: removed; fixed at its default"):
         method_class("onthefly").parse_params({"inpaint_feet": True})
     method = method_class("onthefly")({"max_steps": 2})
@@ -78,3 +79,28 @@ def test_on_the_flys_recipe_only_settings_are_refused_in_a_config_and_kept_in_it
     assert recipe.inpaint_feet and method_class("onthefly")(recipe).params is recipe
     with pytest.raises(MotionDataError, match=r"method\.params\.ema_decay: onthefly: 1\.0 outside"):
         parse_params(ema_decay=1.0)
+
+
+def test_on_the_flys_pre_training_is_its_own_setting_and_its_files_resolve_against_the_config(tmp_path) -> None:
+    """``base_models`` keeps what every method means alike; on-the-fly's pre-training is ``method.params.train``."""
+    from motionaug.schemas.run_config import BaseModelsConfig, load_run_config
+    from motionaug.workflows.pipeline import resolve_method_paths
+
+    assert set(BaseModelsConfig.model_fields) == {"path", "corpus", "pretrain_if_missing", "size"}
+    for old, new in (("pretrain", "method.params.train now"), ("from_mdm", "method.params.train.from_mdm now")):
+        with pytest.raises(ValueError, match=f"{old} moved: the method's training settings are {new}"):
+            BaseModelsConfig.model_validate({old: {} if old == "pretrain" else "x.pt"})
+    folder = tmp_path / "configs"
+    folder.mkdir()
+    path = folder / "run.yaml"
+    train = {"from_mdm": "../mdm/model.pt", "clip_weights": "/abs/ViT-B-32.pt", "prior_steps": 10}
+    path.write_text(
+        "corpus: {path: ../corpus}\noutput: ../run\n"
+        "styles: [{name: proud, words: {adjective: proud}, examples: [{source: c1, description: a walk}]}]\n"
+        f"method: {{name: onthefly, params: {{train: {train}}}}}\n".replace("'", "")
+    )
+    config = resolve_method_paths(load_run_config(path), folder)
+    assert config.method.params["train"] == {**train, "from_mdm": str((tmp_path / "mdm" / "model.pt").resolve())}
+    assert resolve_method_paths(config, tmp_path / "elsewhere") == config  # absolute paths stay as they are
+    with pytest.raises(MotionDataError, match=r"config method\.params\.train\.prior_steps"):
+        method_class("onthefly")({"train": {"prior_steps": 0}}).check_training(TrainingSpec(size="tiny", seed=0))

@@ -532,7 +532,7 @@ def test_zero_shot_transfer_of_a_held_out_style(corpus: Path, tmp_path: Path) ->
     # guidance and the moments shaper are each checked against the plain transfer
     params.update(guidance="none", guidance_scale=1.0, shapers=[])
     method = UmsdMethod(params)
-    spec = TrainingSpec(size="tiny", options={}, seed=0)
+    spec = TrainingSpec(size="tiny", seed=0)
     trained = method.train(corpus, tmp_path / "trained", spec)
     assert method.is_trained(trained)
     stamp = (trained / "umsd.safetensors").stat().st_mtime_ns

@@ -195,8 +195,12 @@ def test_other_config_in_the_same_folder_is_refused(finished_run, corpus: Path, 
         (lambda d: d.__setitem__("method", {"name": "nope"}), "unknown method"),
         (lambda d: d.__setitem__("colour", "red"), "colour"),
         (
-            lambda d: d.update(method={"name": "onthefly"}, base_models={"pretrain": {"prior_steps": -1}}),
-            "base_models.pretrain.prior_steps",
+            lambda d: d.update(method={"name": "onthefly", "params": {"train": {"prior_steps": -1}}}),
+            "method.params.train.prior_steps",
+        ),
+        (
+            lambda d: d.update(base_models={"pretrain": {"prior_steps": 100}}),
+            "pretrain moved: the method's training settings are method.params.train now",
         ),
     ],
 )

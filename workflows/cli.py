@@ -475,13 +475,14 @@ def _print_run_summary(summary: RunSummary) -> None:
 
 def _load_config(path: Path, overrides: list[str], address: str | None, out: Path | None) -> RunConfig:
     from motionaug.schemas.run_config import load_run_config
+    from motionaug.workflows.pipeline import resolve_method_paths
 
     if path.is_dir():
         raise MotionDataError(str(path), "is a folder; give the run config file (YAML or JSON) in it")
     if not path.is_file():
         raise MotionDataError(str(path), "config file not found")
     try:
-        config = load_run_config(path, overrides)
+        config = resolve_method_paths(load_run_config(path, overrides), path.resolve().parent)
     except (ValueError, OSError) as err:
         if isinstance(err, ValidationError):
             raise

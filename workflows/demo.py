@@ -29,13 +29,13 @@ DEMO_STYLES = ("proud", "depressed", "old")
 DEMO_SEED = 0
 DONE = "_SUCCESS"
 DEMO_METHODS = ("onthefly", "stats")
-# Per base-model size: overrides of its pre-training preset and the on-the-fly method's params. `small` is the
-# demo's share of the 10-minute budget on 2 cores: the prior and the motion encoder stop earlier than
-# `motionaug pretrain` would, and each style's fine-tune has a step budget, so the whole demo fits. `tiny` is a
+# Per base-model size: the on-the-fly method's params. `small` is the demo's share of the 10-minute budget on 2
+# cores: the prior and the motion encoder stop earlier than `motionaug pretrain` would (``train``, overrides of the
+# size's pre-training preset), and each style's fine-tune has a step budget, so the whole demo fits. `tiny` is a
 # smoke run of the same path (seconds of training, untrained-looking output).
-DEMO_PROFILES: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
-    "small": ({"prior_steps": 1400, "encoder_steps": 400}, {"max_steps": 40}),
-    "tiny": ({}, {"max_steps": 2, "pair_steps": 10, "batch_size": 4}),
+DEMO_PROFILES: dict[str, dict[str, Any]] = {
+    "small": {"max_steps": 40, "train": {"prior_steps": 1400, "encoder_steps": 400}},
+    "tiny": {"max_steps": 2, "pair_steps": 10, "batch_size": 4},
 }
 
 
@@ -91,13 +91,13 @@ def demo_config(
         raise MotionDataError("demo --method", f"unknown method {method!r} (choose from {', '.join(DEMO_METHODS)})")
     if size not in DEMO_PROFILES:
         raise MotionDataError("demo --size", f"unknown size {size!r} (choose from {', '.join(DEMO_PROFILES)})")
-    pretrain, params = DEMO_PROFILES[size]
+    params = DEMO_PROFILES[size]
     return RunConfig.model_validate(
         {
             "corpus": {"path": corpus, "filters": {"source_styles": ["neutral"], "min_frames": 40, "max_frames": 199}},
             "styles": [s.model_dump() for s in demo_styles(corpus)],
             "method": {"name": method, "params": params if method == "onthefly" else {}},
-            "base_models": {"path": base_models, "size": size, "pretrain": pretrain},
+            "base_models": {"path": base_models, "size": size},
             # pre-training and fine-tunes take both cores (one task at a time); transfers one core each, two at a time
             "compute": {"num_cpus": 2, "finetune_cpus": 2, "transfer_cpus": 1, "batch_size": 32, "unit_size": 128},
             "output": run_dir,

@@ -11,6 +11,7 @@ style's artefact, so a unit whose inputs changed is redone.
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import re
 import resource
@@ -29,7 +30,7 @@ from pydantic import BaseModel
 from motionaug.augment.corpus import Corpus, MotionClip, Reject, write_rejects
 from motionaug.augment.corpus.style_examples import load_style_examples
 from motionaug.augment.methods.base import StyleModel, StyleTransferMethod, TrainingSpec, write_timings
-from motionaug.augment.methods.registry import create_method
+from motionaug.augment.methods.registry import create_method, method_class
 from motionaug.augment.outputs.checksums import sha256_file, sha256_tree
 from motionaug.augment.outputs.run_dir import RunDir
 from motionaug.augment.outputs.shards import TransferOutput, output_row, publish_dir, write_shard
@@ -75,7 +76,25 @@ def derive_seed(*parts: object) -> int:
 
 
 def training_spec(config: RunConfig) -> TrainingSpec:
-    return TrainingSpec(size=config.base_models.size, options=dict(config.base_models.pretrain), seed=config.seed)
+    return TrainingSpec(size=config.base_models.size, seed=config.seed)
+
+
+def resolve_method_paths(config: RunConfig, base: Path) -> RunConfig:
+    """The method's file params (its class's ``path_params``) made absolute against ``base``, as the generic
+    paths are by ``resolve_paths``; an unknown method is left for ``check_config`` to name."""
+    try:
+        dotted_names = method_class(config.method.name).path_params
+    except MotionDataError:
+        return config
+    params = copy.deepcopy(config.method.params)
+    for dotted in dotted_names:
+        *parents, leaf = dotted.split(".")
+        level: Any = params
+        for part in parents:
+            level = level.get(part) if isinstance(level, dict) else None
+        if isinstance(level, dict) and isinstance(level.get(leaf), str) and not Path(level[leaf]).is_absolute():
+            level[leaf] = str((base / level[leaf]).resolve())
+    return config.model_copy(update={"method": config.method.model_copy(update={"params": params})})
 
 
 def training_corpus(config: RunConfig) -> Path:

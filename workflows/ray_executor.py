@@ -26,7 +26,7 @@ from motionaug.schemas.errors import MotionConfigError, MotionDataError
 from motionaug.schemas.run_config import ComputeConfig, RunConfig, resolve_paths
 from motionaug.schemas.shards import Manifest
 from motionaug.workflows.executor import RunProgress, run_pipeline, run_unit
-from motionaug.workflows.pipeline import Resources, Stage, write_resolved_config
+from motionaug.workflows.pipeline import Resources, Stage, resolve_method_paths, write_resolved_config
 from motionaug.workflows.preflight import check_selection, plural, preflight, probe_address, unfit
 
 
@@ -364,7 +364,7 @@ def execute_run(
     """Run (or resume) the whole workflow for ``config`` as the one writer of its folder; returns the manifest
     and timings. Relative paths are made absolute against the working directory first, so what the run stores
     reads back from anywhere. ``lock_wait_s``: how long to wait for a folder's previous writer to exit."""
-    config = resolve_paths(config, Path.cwd())
+    config = resolve_method_paths(resolve_paths(config, Path.cwd()), Path.cwd())
     preflight(config)
     check_selection(config)
     compute = config.compute

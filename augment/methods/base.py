@@ -71,10 +71,10 @@ class CostRates:
 
 @dataclass(frozen=True)
 class TrainingSpec:
-    """What a run asks of a method's ``train``: the model size, preset overrides and the seed."""
+    """What a run asks of a method's ``train``: the network size (``base_models.size``) and the seed. The method's
+    own training settings are in its params (``method.params.train``)."""
 
     size: str
-    options: Mapping[str, Any]
     seed: int
 
 
@@ -101,6 +101,8 @@ class StyleTransferMethod(ABC):
     """Params for a seconds-long run of every step (the contract test, ``motionaug demo --size tiny``)."""
     removed_params: ClassVar[Mapping[str, str]] = {}
     """Settings that left ``Params`` (dotted for nested ones, ``train.w_acc``) and what to do instead."""
+    path_params: ClassVar[tuple[str, ...]] = ()
+    """Params that name files (dotted): a relative one resolves against the config file's folder."""
 
     def __init__(self, params: Mapping[str, Any] | BaseModel | None = None) -> None:
         self.params = self.parse_params(params)

@@ -61,15 +61,17 @@ if TYPE_CHECKING:
     from motionaug.augment.training.pretrain import PretrainConfig
 
 
-def pretrain_config(spec: TrainingSpec) -> PretrainConfig:
-    """The size's pre-training preset plus the run's overrides; a bad override is one line naming it."""
+def pretrain_config(spec: TrainingSpec, options: dict[str, Any]) -> PretrainConfig:
+    """The size's pre-training preset plus the params' ``train`` overrides; a bad one is one line naming it."""
     from motionaug.augment.training.pretrain import PretrainConfig
 
     try:
-        return PretrainConfig.for_size(spec.size, seed=spec.seed, **spec.options)
+        return PretrainConfig.for_size(spec.size, seed=spec.seed, **options)
     except ValidationError as err:
         field, message = first_error(err, "")
-        raise MotionDataError(f"config base_models.pretrain.{field}", message) from None
+        raise MotionDataError(f"config method.params.train.{field}", message) from None
+    except TypeError as err:  # a key given twice (size, seed): the run's own settings
+        raise MotionDataError("config method.params.train", f"{err}; the size and seed are the run's") from None
 
 
 class OnTheFlyMethod(StyleTransferMethod):
@@ -87,6 +89,7 @@ class OnTheFlyMethod(StyleTransferMethod):
 
     smoke_params: ClassVar[dict[str, Any]] = {"max_steps": 2, "pair_steps": 10, "batch_size": 4}
     removed_params: ClassVar[dict[str, str]] = REMOVED_HOW
+    path_params: ClassVar[tuple[str, ...]] = ("train.from_mdm", "train.clip_weights", "train.mdm_stats")
 
     def __init__(
         self, params: OnTheFlyParams | dict[str, Any] | None = None, text_encoder: TextEncoder | None = None
@@ -103,7 +106,7 @@ class OnTheFlyMethod(StyleTransferMethod):
     # ---- once per run: the base models (the T2M prior, the motion encoder) --------------------------------
 
     def check_training(self, spec: TrainingSpec) -> None:
-        pretrain_config(spec)
+        pretrain_config(spec, self.params.train)
 
     def is_trained(self, folder: Path) -> bool:
         return (Path(folder) / BASE_JSON).is_file()
@@ -112,7 +115,7 @@ class OnTheFlyMethod(StyleTransferMethod):
         """Pre-train the base models on ``corpus`` into ``out`` (reused when ``out`` holds matching ones)."""
         from motionaug.augment.training.pretrain import ensure_base_models
 
-        config = pretrain_config(spec)
+        config = pretrain_config(spec, self.params.train)
         return ensure_base_models(corpus, out, config.size, config.seed, progress, config)
 
     # ---- once per style: pairs + fine-tuning -> artefact ---------------------------------------------------

@@ -92,6 +92,11 @@ class OnTheFlyParams(BaseModel):
         description="Sampler callbacks by name (augment.methods.hooks) called on every transfer step's x0 prediction, "
         "in order; none by default.",
     )
+    train: dict[str, Any] = Field(
+        default_factory=dict,
+        description="The base models' pre-training: overrides of the size's preset (augment.training.pretrain's "
+        "PretrainConfig), e.g. prior_steps, or from_mdm/clip_weights/mdm_stats to import an official MDM prior.",
+    )
     min_frames: int = 20
     bf16: bool | None = Field(
         None, description="bf16 autocast; None = on CUDA (tensor cores) and on CPUs with bf16 units, else fp32."
