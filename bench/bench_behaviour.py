@@ -1,4 +1,4 @@
-"""Fingerprints of every shipped method config's outputs on a tiny synthetic corpus, to compare two commits.
+"""Fingerprints of every shipped method config's outputs, to compare two commits.
 
 Each shipped ``configs/*.yaml`` method's params are taken as they are, with ``train`` sized down to the method's
 own ``smoke_params`` and fewer sampling steps, then run through the method contract (train, prepare, load,
@@ -7,6 +7,11 @@ columns of the outputs. Run it in two worktrees (``--root``) and diff the two ou
 
     .venv/bin/python bench/bench_behaviour.py --root ../base > /tmp/base.txt
     .venv/bin/python bench/bench_behaviour.py --root . > /tmp/new.txt && diff /tmp/base.txt /tmp/new.txt
+
+``--bandai2 CORPUS`` runs the four Bandai-2 configs instead through ``motionaug run``'s executor (real Ray) at
+reduced steps (tiny networks, the smoke params), on the ``walk`` takes of the test split in two styles, then
+``evaluate`` with the on-the-fly run's evaluators: printed are the motion and caption columns of every shard row,
+every weight file (run folder and trained models) and ``scores.parquet``'s columns.
 """
 
 from __future__ import annotations
@@ -32,6 +37,8 @@ CONFIGS = (
 )
 STYLES = ("proud", "old")
 N_CLIPS = 40
+BANDAI2_METHODS = ("onthefly", "stats", "erd", "umsd")  # on-the-fly first: its evaluators score every run
+BANDAI2_STYLES = 2
 
 
 def tree_env(root: Path) -> dict[str, str]:
@@ -94,14 +101,54 @@ def run_config(name: str, root: Path, corpus: Path, work: Path) -> list[str]:
     return lines
 
 
+def run_bandai2(method_name: str, root: Path, corpus: Path, work: Path, evaluators: Path | None) -> list[str]:
+    """One shipped Bandai-2 config through the executor at reduced steps, evaluated; its fingerprint lines."""
+    import pyarrow.parquet as pq
+
+    from motionaug.augment.eval.evaluation import evaluate_run, write_scores
+    from motionaug.augment.methods.registry import method_class
+    from motionaug.augment.outputs.shards import iter_shard_rows, row_motion
+    from motionaug.schemas.run_config import load_run_config
+    from motionaug.workflows.ray_executor import execute_run
+
+    data = yaml.safe_load((root / "configs" / f"bandai2-{method_name}.yaml").read_text())
+    smoke = method_class(method_name).smoke_params
+    params = dict(data["method"].get("params") or {})
+    for key, value in smoke.items():
+        params[key] = {**params.get(key, {}), **value} if isinstance(value, dict) else value
+    data["method"]["params"] = params
+    data["styles"] = data["styles"][:BANDAI2_STYLES]
+    data["corpus"] |= {"path": str(corpus), "split": "test", "pool_split": "train"}
+    data["corpus"]["filters"]["contents"] = ["walk"]
+    data["base_models"] = {"path": str(work / "trained"), "corpus": str(corpus), "size": "tiny"}
+    data["output"] = str(work / "run")
+    data["compute"] |= {"num_cpus": 2}
+    execute_run(load_run_config(None, data=data))
+    scores = write_scores(evaluate_run(work / "run", base_models=evaluators or work / "trained"))
+    columns = ["source_id", "style", "motion", "n_frames", "n_feats", "captions"]
+    rows = sorted(iter_shard_rows(work / "run", columns=columns), key=lambda r: (r["source_id"], r["style"]))
+    lines = [
+        f"bandai2-{method_name} rows {len(rows)} motion {digest(row_motion(r).tobytes() for r in rows)} "
+        f"captions {digest(repr(r['captions']).encode() for r in rows)}"
+    ]
+    table = pq.read_table(scores).sort_by("output_id")
+    for name in table.column_names:
+        lines.append(f"bandai2-{method_name} scores {name} {digest([repr(table.column(name).to_pylist()).encode()])}")
+    for path in sorted(work.rglob("*.safetensors")):
+        lines.append(f"bandai2-{method_name} weights {path.relative_to(work)} {digest([path.read_bytes()])}")
+    return lines
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--root", type=Path, default=Path("."), help="the worktree whose code and configs to run")
     parser.add_argument("--configs", default=",".join(CONFIGS), help="comma-separated shipped config names")
+    parser.add_argument("--bandai2", type=Path, help="the Bandai-2 corpus: run its four configs through Ray")
     parser.add_argument("--in-tree", action="store_true", help=argparse.SUPPRESS)  # the child run in --root's code
     args = parser.parse_args()
     if not args.in_tree:
         command = [sys.executable, __file__, "--root", str(args.root), "--configs", args.configs, "--in-tree"]
+        command += ["--bandai2", str(args.bandai2.resolve())] if args.bandai2 else []
         raise SystemExit(subprocess.run(command, env=tree_env(args.root)).returncode)
     import torch
 
@@ -109,6 +156,13 @@ def main() -> None:
 
     print(f"code: {list(motionaug.augment.__path__)}", file=sys.stderr)
     torch.set_num_threads(1)
+    if args.bandai2:
+        with tempfile.TemporaryDirectory() as tmp:
+            for name in BANDAI2_METHODS:
+                evaluators = Path(tmp) / "onthefly" / "trained" if name != "onthefly" else None
+                for line in run_bandai2(name, args.root, args.bandai2, Path(tmp) / name, evaluators):
+                    print(line, flush=True)
+        return
     from motionaug.augment.synth import generate_corpus
 
     with tempfile.TemporaryDirectory() as tmp:

@@ -43,7 +43,7 @@ from motionaug.augment.eval.protocol import (
 )
 from motionaug.augment.io import atomic_save_npy, atomic_write_text
 from motionaug.augment.methods.hooks import ShapeContext, output_shapers
-from motionaug.augment.methods.umsd.method import nearest_root_motion
+from motionaug.augment.methods.shaping import nearest_root_motion
 from motionaug.augment.metrics import matched_fmd, mean_foot_skating
 from motionaug.augment.motion.features import Normalizer, features_to_joints
 from motionaug.augment.motion.foot_lock import lock_feet

@@ -33,8 +33,9 @@ from motionaug.augment.corpus import MotionClip  # noqa: E402
 from motionaug.augment.methods.common import trajectory_channels  # noqa: E402
 from motionaug.augment.methods.hooks import ShapeContext  # noqa: E402
 from motionaug.augment.methods.shapers import with_amplitude, with_posture  # noqa: E402
+from motionaug.augment.methods.shaping import nearest_root_motion  # noqa: E402
 from motionaug.augment.methods.umsd import load_umsd  # noqa: E402
-from motionaug.augment.methods.umsd.method import UmsdMethod, nearest_root_motion  # noqa: E402
+from motionaug.augment.methods.umsd.method import UmsdMethod  # noqa: E402
 from motionaug.augment.motion.kinematics import gaussian_smooth_time  # noqa: E402
 from motionaug.augment.outputs.shards import TransferOutput  # noqa: E402
 

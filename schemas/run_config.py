@@ -120,6 +120,11 @@ class CorpusConfig(_Strict):
 class MethodConfig(_Strict):
     name: str = Field(default="stats", min_length=1)
     params: dict[str, Any] = Field(default_factory=dict, description="Checked by the method's validate_params.")
+    shapers: list[str | dict[str, Any]] = Field(
+        default_factory=list,
+        description="Output shapers (registered by name, augment.methods.hooks) applied in order to every output of "
+        "any method, e.g. [moments]; a shaper is a post-process, not part of the method.",
+    )
 
 
 class FanOutConfig(_Strict):
@@ -254,6 +259,8 @@ class RunConfig(_Strict):
         keep = self.model_dump(mode="json", include={"version", "corpus", "styles", "method", "fan_out", "seed"})
         keep["batching"] = [self.compute.unit_size, self.compute.batch_size]  # seeds are drawn per unit and batch
         keep["corpus"]["path"] = str(Path(keep["corpus"]["path"]).resolve())
+        if not keep["method"]["shapers"]:
+            del keep["method"]["shapers"]  # the default: run ids of configs without shapers stay as they were
         if keep["corpus"]["max_clip_frames"] is None:
             del keep["corpus"]["max_clip_frames"]  # the default: run ids of configs that never set it stay as they were
         keep["corpus"]["content"] = self.corpus_fingerprint()

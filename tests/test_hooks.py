@@ -2,7 +2,9 @@
 
 The output shaper below is defined in this test module; the run config names the module in ``hooks.modules``,
 so every worker imports it before building the method. A worker that had not would fail the run with an unknown
-shaper. Imports only the package (the workers import this module by name, without the tests' conftest).
+shaper. Shapers are the run's (``method.shapers``), so any method takes them: here the stats baseline, after the
+shipped ``moments`` (which needs the prepare stage's references). Imports only the package (the workers import this
+module by name, without the tests' conftest).
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from safetensors.numpy import load_file
 
 from motionaug.augment.corpus import Corpus
 from motionaug.augment.methods.hooks import (
@@ -20,7 +23,7 @@ from motionaug.augment.methods.hooks import (
     output_shapers,
     split_spec,
 )
-from motionaug.augment.methods.registry import method_class
+from motionaug.augment.methods.shaping import SHAPING_FILE
 from motionaug.augment.outputs.shards import iter_shard_rows, row_motion
 from motionaug.augment.synth import generate_corpus
 from motionaug.schemas.errors import MotionDataError
@@ -29,14 +32,13 @@ from motionaug.schemas.run_config import load_run_config
 
 @output_shapers.register("test-content")
 class ContentBack(OutputShaper):
-    """Gives the content clip back: every output is its source, up to normalising rounding."""
+    """Gives the content clip back: every output is its source."""
 
     def __call__(self, output: np.ndarray, context: ShapeContext) -> np.ndarray:
         return context.content.copy()
 
 
 def run_config(corpus: Path, out: Path, modules: list[str]):
-    params = {**method_class("umsd").smoke_params, "shapers": ["test-content"], "guidance": "none"}
     styles = [
         {
             "name": "proud",
@@ -47,7 +49,7 @@ def run_config(corpus: Path, out: Path, modules: list[str]):
     data = {
         "corpus": {"path": str(corpus), "filters": {"source_styles": ["neutral"], "min_frames": 40}},
         "styles": styles,
-        "method": {"name": "umsd", "params": params},
+        "method": {"name": "stats", "params": {}, "shapers": ["moments", "test-content"]},
         "hooks": {"modules": modules},
         "base_models": {"size": "tiny"},
         "compute": {"num_cpus": 2, "batch_size": 4, "unit_size": 4},
@@ -85,5 +87,7 @@ def test_a_shaper_defined_in_a_test_module_runs_in_the_ray_workers(tmp_path: Pat
     sources = {c.id: c for c in Corpus(corpus)}
     rows = list(iter_shard_rows(tmp_path / "run"))
     assert rows
-    for row in rows:  # the shaper ran: every output is its source
-        np.testing.assert_allclose(row_motion(row), sources[row["source_id"]].motion, atol=1e-4)
+    for row in rows:  # the shapers ran, in order: every output is its source
+        np.testing.assert_array_equal(row_motion(row), sources[row["source_id"]].motion)
+    shaping = load_file(str(tmp_path / "run" / "styles" / "proud" / SHAPING_FILE))
+    assert set(shaping) == {"example.0", "reference.0"}  # the moments shaper's reference, picked at prepare

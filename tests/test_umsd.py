@@ -25,9 +25,11 @@ from motionaug.augment.methods.hooks import (
     SamplerCallback,
     SamplerStep,
     loss_terms,
+    output_shapers,
     sampler_callbacks,
 )
 from motionaug.augment.methods.shapers import with_amplitude, with_posture
+from motionaug.augment.methods.shaping import ShapedModel, nearest_root_motion, read_shaping, write_shaping
 from motionaug.augment.methods.umsd import (
     UmsdTrain,
     UmsdTrainConfig,
@@ -41,7 +43,6 @@ from motionaug.augment.methods.umsd.method import (
     UmsdMethod,
     UmsdParams,
     blend_ramp,
-    nearest_root_motion,
     window_spans,
 )
 from motionaug.augment.methods.umsd.pace import pace_ratio
@@ -440,11 +441,10 @@ def test_params() -> None:
         UmsdMethod.parse_params({"posture": "example", "amplitude": "example"})
     with pytest.raises(MotionDataError, match=r"config method\.params\.x0_smooth: umsd: removed; .*lab/README\.md"):
         UmsdMethod.parse_params({"x0_smooth": 1.0})
-    with pytest.raises(MotionDataError, match=r"config method\.params\.shapers: .*unknown output shaper 'nope'"):
-        UmsdMethod.parse_params({"shapers": ["nope"]})
+    with pytest.raises(MotionDataError, match=r"config method\.params\.shapers: umsd: removed; .* method\.shapers"):
+        UmsdMethod.parse_params({"shapers": ["moments"]})
     with pytest.raises(MotionDataError, match=r"config method\.params\.callbacks: .*unknown sampler callback"):
         UmsdMethod.parse_params({"callbacks": [{"name": "nope", "sigma": 1}]})
-    assert UmsdParams(shapers=["moments"]).needs_references and not UmsdParams().needs_references
     # a field added later is left out of the dump at its default: older configs (and model keys) stay the same
     assert "align_content" not in UmsdTrainConfig().model_dump()
     aligned = UmsdTrainConfig(align_content=True)
@@ -530,7 +530,7 @@ def test_zero_shot_transfer_of_a_held_out_style(corpus: Path, tmp_path: Path) ->
     params = copy.deepcopy(UmsdMethod.smoke_params)
     params["train"] = {**params["train"], "exclude_styles": [HELD_OUT]}
     # guidance and the moments shaper are each checked against the plain transfer
-    params.update(guidance="none", guidance_scale=1.0, shapers=[])
+    params.update(guidance="none", guidance_scale=1.0)
     method = UmsdMethod(params)
     spec = TrainingSpec(size="tiny", seed=0)
     trained = method.train(corpus, tmp_path / "trained", spec)
@@ -590,18 +590,18 @@ def test_zero_shot_transfer_of_a_held_out_style(corpus: Path, tmp_path: Path) ->
     itself = guided.prepare(style, [short], trained, [], tmp_path / "itself").folder
     plain = method.load(itself, trained).transfer([short], seed=3)[0].motion
     np.testing.assert_allclose(guided.load(itself, trained).transfer([short], seed=3)[0].motion, plain, atol=1e-4)
-    # the moments shaper: the references are picked from the pool, one per example
-    shaped = UmsdMethod({**params, "shapers": ["moments"]})
-    assert shaped.content_clips() > 0 and method.content_clips() == 0
-    with pytest.raises(MotionDataError, match="need usable content clips to pick the examples' references from"):
-        shaped.prepare(style, [example], trained, [broken], tmp_path / "no-pool")
-    with pytest.raises(MotionDataError, match="prepared without references"):
-        shaped.load(artifact, trained)
-    pooled = shaped.prepare(style, [example], trained, [broken, *content], tmp_path / "pooled").folder
-    assert json.loads((pooled / ARTIFACT_JSON).read_text(encoding="utf-8"))["references"][0] in {c.id for c in content}
-    moved = shaped.load(pooled, trained).transfer([content[1]], seed=3)[0].motion
-    assert np.isfinite(moved).all() and np.abs(moved - alone.motion).mean() > 1e-3
-    np.testing.assert_array_equal(method.load(pooled, trained).transfer([content[1]], seed=3)[0].motion, alone.motion)
+    # the moments shaper, the run's for any method: the references are picked from the pool, one per example
+    with pytest.raises(MotionDataError, match="need usable plain pool clips to pick the references from"):
+        write_shaping(tmp_path, HELD_OUT, [example], [broken], ["moments"])
+    write_shaping(tmp_path, HELD_OUT, [example], [broken, *content], ["moments"])
+    examples, references = read_shaping(tmp_path)
+    assert len(references) == 1 and any(np.array_equal(references[0], c.motion) for c in content)
+    moved = ShapedModel(model, [output_shapers.create("moments")], examples, references)
+    shaped = moved.transfer([content[1], broken], seed=3)
+    assert isinstance(shaped[1], Reject) and np.isfinite(shaped[0].motion).all()
+    assert np.abs(shaped[0].motion - alone.motion).mean() > 1e-3
+    with pytest.raises(MotionDataError, match="the artefact has no references"):
+        ShapedModel(model, [output_shapers.create("moments")], examples)
 
     (trained / "umsd.json").write_text((trained / "umsd.json").read_text() + " ", encoding="utf-8")
     with pytest.raises(MotionDataError, match="prepared for UMSD network"):

@@ -30,7 +30,10 @@ from pydantic import BaseModel
 from motionaug.augment.corpus import Corpus, MotionClip, Reject, write_rejects
 from motionaug.augment.corpus.style_examples import load_style_examples
 from motionaug.augment.methods.base import StyleModel, StyleTransferMethod, TrainingSpec, write_timings
+from motionaug.augment.methods.hooks import output_shapers
 from motionaug.augment.methods.registry import create_method, method_class
+from motionaug.augment.methods.shaping import ShapedModel, read_shaping, write_shaping
+from motionaug.augment.methods.shaping import pool_size as shaping_pool_size
 from motionaug.augment.outputs.checksums import sha256_file, sha256_tree
 from motionaug.augment.outputs.run_dir import RunDir
 from motionaug.augment.outputs.shards import TransferOutput, output_row, publish_dir, write_shard
@@ -140,6 +143,7 @@ def check_config(config: RunConfig) -> StyleTransferMethod:
                 where = f"config styles[{i}].examples[{j}].source"
                 raise MotionDataError(where, f"style example file {source} not found")
     method = create_method(config.method.name, config.method.params, config.hooks.modules)
+    output_shapers.create_all(config.method.shapers, "config method.shapers")  # known names, valid options
     trained = None
     if method.trains:
         method.check_training(training_spec(config))
@@ -271,7 +275,7 @@ class PlanStage(Stage):
 
     def __init__(self, config: RunConfig, method: StyleTransferMethod) -> None:
         super().__init__(config)
-        self.pool_size = method.content_clips()
+        self.pool_size = max(method.content_clips(), shaping_pool_size(config.method.shapers))
 
     def keys(self) -> list[Hashable]:
         return ["plan"]
@@ -435,16 +439,20 @@ class PrepareStage(Stage):
         start = time.perf_counter()
         style_name = str(key)
         method = create_method(self.config.method.name, self.config.method.params, self.config.hooks.modules)
-        content: list[MotionClip] = []
-        if method.content_clips() and self.plan.pool:
-            content = Corpus(self.config.corpus.path).load(self.plan.pool, self.plan.pool_files)[0]
+        shapers = self.config.method.shapers
+        pool: list[MotionClip] = []
+        if (method.content_clips() or shaping_pool_size(shapers)) and self.plan.pool:
+            pool = Corpus(self.config.corpus.path).load(self.plan.pool, self.plan.pool_files)[0]
         style = next(s for s in self.config.styles if s.name == style_name)
         examples = load_examples(style, self.config)
         final = self.run_dir.artifact_dir(style_name)
         tmp = final.with_name(f".{style_name}.{uuid.uuid4().hex[:12]}.tmp")
         seed = derive_seed("finetune", self.config.seed, style_name)
         started = time.perf_counter()
+        content = pool if method.content_clips() else []
         prepared = method.prepare(style, examples, self.trained, content, tmp, seed=seed)
+        if shapers:  # beside the method's artefact, in its checksum: the examples and the shapers' references
+            write_shaping(tmp, style_name, examples, pool, shapers)
         write_timings(prepared, time.perf_counter() - started)
         returned = Path(prepared.folder)
         inner = returned.relative_to(tmp) if returned != tmp else Path()
@@ -514,6 +522,9 @@ class TransferStage(Stage):
         start = time.perf_counter()
         method = create_method(self.config.method.name, self.config.method.params, self.config.hooks.modules)
         model = method.load(self.run_dir.root / artifact.path / artifact.entry, self.trained)
+        if self.config.method.shapers:
+            shapers = output_shapers.create_all(self.config.method.shapers, "config method.shapers")
+            model = ShapedModel(model, shapers, *read_shaping(self.run_dir.root / artifact.path))
         load_seconds = time.perf_counter() - start
         clips, rejects = Corpus(self.config.corpus.path).load(unit.styles[style], unit.files)
         splits = self.plan.splits

@@ -6,8 +6,8 @@ style, ``prepare`` only validates the example clips and stores them normalised i
 ``load`` + ``transfer``: DDIM sampling of x0 conditioned on U(content clip, style example) (sec. 3.1, Fig. 3 right:
 from pure noise down to step 0, the MSM predicting x0 at every step), keeping the content's root trajectory by
 inpainting, with captions revised in the style's words. A clip longer than the network's training crop is
-sampled in overlapping windows of that length, blended over the overlaps. Research variants plug in by name
-(``augment.methods.hooks``): sampler callbacks on every step's x0, output shapers on every output.
+sampled in overlapping windows of that length, blended over the overlaps. Sampler callbacks plug in by name
+(``augment.methods.hooks``) and see every step's x0; output shapers are the run's, for every method alike.
 """
 
 from __future__ import annotations
@@ -48,14 +48,8 @@ from motionaug.augment.methods.common import (
     trajectory_channels,
     write_artifact,
 )
-from motionaug.augment.methods.hooks import (
-    HookSpec,
-    SamplerStep,
-    ShapeContext,
-    needs_reference,
-    output_shapers,
-    sampler_callbacks,
-)
+from motionaug.augment.methods.hooks import HookSpec, SamplerStep, sampler_callbacks
+from motionaug.augment.methods.shaping import example_index
 from motionaug.augment.methods.umsd.training import (
     META_FILE,
     WEIGHTS_FILE,
@@ -68,10 +62,8 @@ from motionaug.augment.methods.umsd.training import (
     x0_from_output,
 )
 from motionaug.augment.motion.batch import pad_batch
-from motionaug.augment.motion.features import feature_slices
 from motionaug.schemas.captions import Caption
 from motionaug.schemas.errors import MotionDataError
-from motionaug.schemas.skeleton import T2M
 from motionaug.schemas.styles import StyleSpec
 
 METHOD_NAME = "umsd"
@@ -79,9 +71,10 @@ NUM_TIMESTEPS = 1000
 
 
 REMOVED = {
-    "posture": "posture and amplitude 'example' are the output shaper 'moments' now: shapers: [moments]",
-    "amplitude": "posture and amplitude 'example' are the output shaper 'moments' now: shapers: [moments]",
-    "amplitude_floor": "it is the moments shaper's option now: shapers: [{name: moments, floor: F}]",
+    "posture": "posture and amplitude 'example' are the output shaper 'moments' now: method.shapers: [moments]",
+    "amplitude": "posture and amplitude 'example' are the output shaper 'moments' now: method.shapers: [moments]",
+    "amplitude_floor": "it is the moments shaper's option now: method.shapers: [{name: moments, floor: F}]",
+    "shapers": "output shapers apply to every method's outputs now: method.shapers (beside method.params)",
     "x0_smooth": "it is a lab sampler callback now: see lab/README.md",
     "x0_smooth_from": "it is a lab sampler callback's option now: see lab/README.md",
     "ceiling_slack": "the spectral ceiling is a lab output shaper now: see lab/README.md",
@@ -93,7 +86,7 @@ REMOVED = {
     "pace": "transfers walk the content's pace; drop the setting",
     "eta": "sampling is deterministic DDIM (eta 0); drop the setting",
     "transfer_noise_step": "sampling starts from pure noise as in the paper; drop the setting",
-    "reference_pool": "the plan hands prepare 64 content clips to pick references from; drop the setting",
+    "reference_pool": "the plan hands the shapers 64 pool clips to pick references from; drop the setting",
     "window": "clips longer than the training crop are sampled in windows of that length; drop the setting",
     "window_overlap": "windows overlap by at least 16 frames; drop the setting",
     "bf16": "UMSD samples in float32; drop the setting",
@@ -115,14 +108,13 @@ REMOVED_TRAIN = {
     "train.w_acc": "the acceleration term is a lab loss term now: loss_terms: [{name: acceleration, weight: W}] "
     "with hooks.modules: [lab.umsd_hooks]",
 }
-REFERENCE_POOL = 64  # content clips the plan hands ``prepare`` to pick the shapers' references from
 WINDOW_OVERLAP = 16  # least overlap of two sampling windows, frames (the blend ramp)
 KEPT = "horizontal"  # the content's root channels inpainted: its ground path and heading
 
 
 class UmsdParams(BaseModel):
     """What a UMSD transfer is asked: the network's training, DDIM sampling with optional style guidance, and
-    the hooks (``augment.methods.hooks``) that shape the outputs or see every sampling step."""
+    the sampler callbacks (``augment.methods.hooks``) that see every sampling step."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -135,29 +127,16 @@ class UmsdParams(BaseModel):
         "in for no style (Eq. 10 teaches that it gives the content back); none: x0(c, s)",
     )
     guidance_scale: float = Field(1.0, ge=0.0, description="w of style guidance (1: none; > 1: more of the style)")
-    shapers: list[HookSpec] = Field(
-        default_factory=list, description="output shapers applied to every output in order, e.g. [moments]"
-    )
     callbacks: list[HookSpec] = Field(
         default_factory=list, description="sampler callbacks called on every step's x0 prediction, in order"
     )
     batch_size: int = Field(16, ge=1, description="windows (clips) per sampling batch")
     caption_variants: int = Field(1, ge=1, description="Revised captions per output clip.")
 
-    @field_validator("shapers")
-    @classmethod
-    def _known_shapers(cls, specs: list[HookSpec]) -> list[HookSpec]:
-        return output_shapers.checked(specs)
-
     @field_validator("callbacks")
     @classmethod
     def _known_callbacks(cls, specs: list[HookSpec]) -> list[HookSpec]:
         return sampler_callbacks.checked(specs)
-
-    @property
-    def needs_references(self) -> bool:
-        """Whether ``prepare`` picks a plain stand-in for each example's content from the content pool."""
-        return needs_reference(self.shapers)
 
 
 class UmsdArtifact(BaseModel):
@@ -170,7 +149,7 @@ class UmsdArtifact(BaseModel):
     style: StyleSpec
     examples: list[str]
     example_frames: list[int]  # as stored (the middle ``train.max_frames`` of a longer example)
-    references: list[str] = []  # per example, the pool clip standing in for its content without the style
+    references: list[str] = []  # artefacts made when UMSD shaped its own outputs; unused
     trained_fingerprint: str
     weights_bytes: int
 
@@ -193,14 +172,9 @@ class UmsdMethod(CorpusTrainedMethod):
         "batch_size": 4,
         "guidance": "style",
         "guidance_scale": 2.0,
-        "shapers": ["moments"],  # the plan's pool reaches ``prepare``, the references the shaper
     }
 
     cost_rates: ClassVar[CostRates] = CostRates(prepare_s=0.04, transfer_clips_per_s=0.67)
-
-    def content_clips(self) -> int:
-        """The clips the output shapers' references are picked from (none without such a shaper)."""
-        return REFERENCE_POOL if self.params.needs_references else 0
 
     # ---- once per run: the network ----------------------------------------------------------------------
 
@@ -239,23 +213,10 @@ class UmsdMethod(CorpusTrainedMethod):
             motion = self._checked_clip(example, model, f"style {style.name!r} example {example.id}")
             motions.append(motion)
             weights[f"example.{i}"] = self._stored(motion, model)
-        references: list[str] = []
-        if self.params.needs_references:
-            candidates = self._reference_candidates(content, model)
-            if not candidates:
-                raise MotionDataError(
-                    f"style {style.name!r}",
-                    "the output shapers need usable content clips to pick the examples' references from",
-                )
-            for i, motion in enumerate(motions):
-                reference_id, reference = nearest_root_motion(motion, candidates)
-                references.append(reference_id)
-                weights[f"reference.{i}"] = self._stored(reference, model)
         info = UmsdArtifact(
             style=style,
             examples=[e.id for e in examples],
             example_frames=[int(weights[f"example.{i}"].shape[0]) for i in range(len(examples))],
-            references=references,
             trained_fingerprint=trained_fingerprint(Path(trained)),
             weights_bytes=tensor_bytes(weights),
         )
@@ -277,16 +238,6 @@ class UmsdMethod(CorpusTrainedMethod):
             first = (motion.shape[0] - longest) // 2
             motion = motion[first : first + longest]
         return torch.from_numpy(model.normalizer.normalize(motion).astype(np.float32))
-
-    def _reference_candidates(self, pool: Sequence[MotionClip], model: UmsdModel) -> dict[str, np.ndarray]:
-        """The pool's usable clips by id (an unusable one is rejected again, and reported, by ``transfer``)."""
-        found = {}
-        for clip in pool:
-            try:
-                found[clip.id] = self._checked_clip(clip, model, f"clip {clip.id}")
-            except MotionDataError:
-                continue
-        return found
 
     def _checked_length(self, motion: np.ndarray, model: UmsdModel, source: str) -> np.ndarray:
         if motion.shape[0] < MIN_EXAMPLE_FRAMES:
@@ -311,40 +262,7 @@ class UmsdMethod(CorpusTrainedMethod):
             )
         tensors = read_tensors(Path(artifact) / ARTIFACT_WEIGHTS)
         examples = [tensors[f"example.{i}"] for i in range(len(info.examples))]
-        references = []
-        if self.params.needs_references:
-            if len(info.references) != len(examples):
-                raise MotionDataError(
-                    str(artifact),
-                    "prepared without references; the output shapers need them",
-                )
-            references = [tensors[f"reference.{i}"] for i in range(len(examples))]
-        return UmsdStyleModel(info.style, load_umsd(trained), examples, self.params, references)
-
-
-def root_motion(motion: np.ndarray) -> np.ndarray:
-    """What a clip's root does, a summary that style changes little: the log of its mean ground speed (slow and
-    fast styles move a walk's speed by a factor, far less than a walk differs from standing), the direction of its
-    mean velocity in the facing frame (sideways, either side, and forwards: a walk is not a sidestep or a backward
-    walk), its turning rate (per frame) and the spread of the root height. Not the share of frames with a foot
-    down: slow styles raise it as much as standing still does."""
-    slices = feature_slices(T2M)
-    velocity = motion[:, slices["root_lin_vel"]]
-    speed = np.linalg.norm(velocity, axis=1).mean()
-    sideways, forwards = velocity.mean(axis=0) / (speed + 1e-6)
-    turning = np.abs(motion[:, slices["root_rot_vel"]]).mean()
-    return np.array([np.log(speed + 1e-3), abs(sideways), forwards, turning, motion[:, slices["root_y"]].std()])
-
-
-def nearest_root_motion(example: np.ndarray, candidates: dict[str, np.ndarray]) -> tuple[str, np.ndarray]:
-    """The candidate whose ``root_motion`` is nearest the example's, each summary entry scaled by its spread over
-    the candidates (ties: the smallest id). A stand-in for the example's content performed without its style."""
-    ids = sorted(candidates)
-    summaries = np.stack([root_motion(candidates[i]) for i in ids])
-    scale = summaries.std(axis=0) + 1e-6
-    distance = np.linalg.norm((summaries - root_motion(example)) / scale, axis=1)
-    best = ids[int(np.argmin(distance))]
-    return best, candidates[best]
+        return UmsdStyleModel(info.style, load_umsd(trained), examples, self.params)
 
 
 def window_spans(frames: int, window: int, overlap: int = WINDOW_OVERLAP) -> list[tuple[int, int]]:
@@ -388,7 +306,6 @@ class UmsdStyleModel:
         model: UmsdModel,
         examples: Sequence[torch.Tensor],
         params: UmsdParams,
-        references: Sequence[torch.Tensor] = (),
     ):
         if not examples:
             raise MotionDataError(f"style {style.name!r}", "no example motions")
@@ -397,12 +314,10 @@ class UmsdStyleModel:
         self.model = model
         self.net = model.net.eval().requires_grad_(False)
         self.examples = [e.float() for e in examples]
-        self.references = [r.float() for r in references]  # style-contrast guidance: one per example
         self.params = params
         self.vocab = style_vocab(style.words, style.name)
         self.kept = trajectory_channels(KEPT)
         self.schedule = NoiseSchedule.cosine(NUM_TIMESTEPS)  # the training schedule (``skip_x0``)
-        self.shapers = output_shapers.create_all(params.shapers, "config method.params.shapers")
         self.callbacks = sampler_callbacks.create_all(params.callbacks, "config method.params.callbacks")
 
     def _job(self, index: int, clip: MotionClip, seed: int) -> _Job:
@@ -417,8 +332,9 @@ class UmsdStyleModel:
         return _Job(index, clip, motion, captions)
 
     def example_index(self, clip_id: str) -> int:
-        """Which style example a clip is conditioned on: one per clip, chosen by its id (batch-independent)."""
-        return zlib.crc32(clip_id.encode("utf-8")) % len(self.examples)
+        """Which style example a clip is conditioned on: one per clip, chosen by its id (batch-independent), the
+        one that shapes its output too."""
+        return example_index(clip_id, len(self.examples))
 
     def transfer(self, clips: Sequence[MotionClip], seed: int = 0) -> list[TransferOutput | Reject]:
         """Stylize a batch; a clip that cannot be used (NaN, wrong width, too short or long) is a ``Reject``."""
@@ -504,14 +420,7 @@ class UmsdStyleModel:
         outputs = self._sample_windows(jobs, seed)
         results: list[TransferOutput | Reject] = []
         for i, job in enumerate(jobs):
-            picked = self.example_index(job.clip.id)
-            content = norm.normalize(job.motion).astype(np.float32)
-            reference = self.references[picked].numpy() if self.references else None
-            context = ShapeContext(content, self.examples[picked].numpy(), reference, self.model.info.fps)
-            output = outputs[i]
-            for shaper in self.shapers:
-                output = shaper(output, context)
-            motion = norm.denormalize(output).astype(np.float32)
+            motion = norm.denormalize(outputs[i]).astype(np.float32)
             motion[:, self.kept] = job.motion[:, self.kept]  # exactly the content's, not up to rounding
             if not np.isfinite(motion).all():
                 results.append(Reject(id=job.clip.id, source=f"clip {job.clip.id}", reason="non-finite UMSD output"))

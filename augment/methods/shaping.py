@@ -1,0 +1,143 @@
+"""Output shaping: the run's output shapers (``method.shapers``) applied to every method's outputs alike.
+
+A shaper is a post-process, so it belongs to no method: the workflow's prepare stage stores, beside a style's
+artefact, the style's examples and (when a shaper reads one) each example's reference, a plain pool clip whose root
+moves like the example's, standing in for the example's content performed without the style (``nearest_root_motion``).
+The transfer stage wraps the method's model in ``ShapedModel``, which shapes each output in the corpus's feature
+space with the example the clip's id picks. Applying the same shapers to the content clip without the network is the
+control row every shipped post-process gets (``bench/bench_lso.py``).
+"""
+
+from __future__ import annotations
+
+import json
+import zlib
+from collections.abc import Sequence
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from safetensors.numpy import load_file, save_file
+
+from motionaug.augment.corpus.clip import MotionClip
+from motionaug.augment.corpus.rejects import Reject
+from motionaug.augment.methods.base import StyleModel
+from motionaug.augment.methods.hooks import HookSpec, OutputShaper, ShapeContext, needs_reference
+from motionaug.augment.motion.features import feature_slices
+from motionaug.augment.outputs.shards import TransferOutput
+from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.skeleton import T2M
+
+SHAPING_FILE = "_shaping.safetensors"
+REFERENCE_POOL = 64  # plain pool clips the plan hands the prepare stage to pick references from
+MIN_REFERENCE_FRAMES = 8
+
+
+def pool_size(specs: Sequence[HookSpec]) -> int:
+    """How many pool clips the shapers need (0 when none reads a reference)."""
+    return REFERENCE_POOL if specs and needs_reference(specs) else 0
+
+
+def root_motion(motion: np.ndarray) -> np.ndarray:
+    """What a clip's root does, a summary that style changes little: the log of its mean ground speed (slow and
+    fast styles move a walk's speed by a factor, far less than a walk differs from standing), the direction of its
+    mean velocity in the facing frame (sideways, either side, and forwards: a walk is not a sidestep or a backward
+    walk), its turning rate (per frame) and the spread of the root height. Not the share of frames with a foot
+    down: slow styles raise it as much as standing still does."""
+    slices = feature_slices(T2M)
+    velocity = motion[:, slices["root_lin_vel"]]
+    speed = np.linalg.norm(velocity, axis=1).mean()
+    sideways, forwards = velocity.mean(axis=0) / (speed + 1e-6)
+    turning = np.abs(motion[:, slices["root_rot_vel"]]).mean()
+    return np.array([np.log(speed + 1e-3), abs(sideways), forwards, turning, motion[:, slices["root_y"]].std()])
+
+
+def nearest_root_motion(example: np.ndarray, candidates: dict[str, np.ndarray]) -> tuple[str, np.ndarray]:
+    """The candidate whose ``root_motion`` is nearest the example's, each summary entry scaled by its spread over
+    the candidates (ties: the smallest id). A stand-in for the example's content performed without its style."""
+    ids = sorted(candidates)
+    summaries = np.stack([root_motion(candidates[i]) for i in ids])
+    scale = summaries.std(axis=0) + 1e-6
+    distance = np.linalg.norm((summaries - root_motion(example)) / scale, axis=1)
+    best = ids[int(np.argmin(distance))]
+    return best, candidates[best]
+
+
+def usable(clip: MotionClip, width: int) -> bool:
+    """A pool clip a reference may be: finite, of the examples' width, long enough to have moments."""
+    m = clip.motion
+    return m.ndim == 2 and m.shape[1] == width and m.shape[0] >= MIN_REFERENCE_FRAMES and bool(np.isfinite(m).all())
+
+
+def write_shaping(
+    folder: Path, style: str, examples: Sequence[MotionClip], pool: Sequence[MotionClip], specs: Sequence[HookSpec]
+) -> None:
+    """The style's examples and, when a shaper reads one, each example's reference, into ``folder``."""
+    tensors = {f"example.{i}": np.ascontiguousarray(e.motion, dtype=np.float32) for i, e in enumerate(examples)}
+    references: list[str] = []
+    if needs_reference(specs):
+        width = examples[0].motion.shape[1]
+        candidates = {c.id: c.motion for c in pool if usable(c, width)}
+        if not candidates:
+            raise MotionDataError(
+                f"style {style!r}", "the output shapers need usable plain pool clips to pick the references from"
+            )
+        for i, example in enumerate(examples):
+            reference_id, reference = nearest_root_motion(example.motion, candidates)
+            references.append(reference_id)
+            tensors[f"reference.{i}"] = np.ascontiguousarray(reference, dtype=np.float32)
+    metadata = {"examples": json.dumps([e.id for e in examples]), "references": json.dumps(references)}
+    save_file(tensors, str(Path(folder) / SHAPING_FILE), metadata=metadata)
+
+
+def read_shaping(folder: Path) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """(examples, references) as ``write_shaping`` stored them; references empty when no shaper read one."""
+    path = Path(folder) / SHAPING_FILE
+    if not path.is_file():
+        raise MotionDataError(str(folder), f"no {SHAPING_FILE}: the artefact was prepared without output shapers")
+    tensors = load_file(str(path))
+    examples = [tensors[f"example.{i}"] for i in range(sum(k.startswith("example.") for k in tensors))]
+    references = [tensors[f"reference.{i}"] for i in range(sum(k.startswith("reference.") for k in tensors))]
+    return examples, references
+
+
+def example_index(clip_id: str, n_examples: int) -> int:
+    """Which example shapes a clip's output: one per clip, chosen by its id (batch-independent)."""
+    return zlib.crc32(clip_id.encode("utf-8")) % n_examples
+
+
+class ShapedModel:
+    """A style model whose every output goes through the shapers; a non-finite shaped output is a ``Reject``."""
+
+    def __init__(
+        self,
+        model: StyleModel,
+        shapers: Sequence[OutputShaper],
+        examples: Sequence[np.ndarray],
+        references: Sequence[np.ndarray] = (),
+    ) -> None:
+        if any(s.needs_reference for s in shapers) and len(references) != len(examples):
+            raise MotionDataError("config method.shapers", "the artefact has no references; prepare it again")
+        self.model, self.shapers = model, list(shapers)
+        self.examples, self.references = list(examples), list(references)
+        self.style = model.style
+
+    def transfer(self, clips: Sequence[MotionClip], seed: int = 0) -> list[TransferOutput | Reject]:
+        by_id = {c.id: c for c in clips}
+        shaped: list[TransferOutput | Reject] = []
+        for out in self.model.transfer(clips, seed):
+            if isinstance(out, Reject):
+                shaped.append(out)
+                continue
+            clip = by_id[out.source_id]
+            picked = example_index(clip.id, len(self.examples))
+            reference = self.references[picked] if self.references else None
+            context = ShapeContext(clip.motion.astype(np.float32), self.examples[picked], reference, clip.fps)
+            motion = out.motion
+            for shaper in self.shapers:
+                motion = shaper(motion, context)
+            if not np.isfinite(motion).all():
+                shaped.append(Reject(id=clip.id, source=f"clip {clip.id}", reason="non-finite shaped output"))
+                continue
+            shaped.append(replace(out, motion=motion.astype(np.float32)))
+        return shaped
