@@ -70,7 +70,7 @@ def test_on_the_fly_artefacts_made_before_a_setting_left_still_load() -> None:
 def test_on_the_flys_recipe_only_settings_are_refused_in_a_config_and_kept_in_its_artefacts() -> None:
     from motionaug.augment.methods.onthefly.params import RECIPE_ONLY, OnTheFlyParams, OnTheFlyRecipe, parse_params
 
-    assert not set(RECIPE_ONLY) & set(OnTheFlyParams.model_fields) and len(OnTheFlyParams.model_fields) == 25
+    assert not set(RECIPE_ONLY) & set(OnTheFlyParams.model_fields) and len(OnTheFlyParams.model_fields) == 26
     with pytest.raises(MotionDataError, match=r"method\.params\.inpaint_feet: onthefly: removed; fixed at its default"):
         method_class("onthefly").parse_params({"inpaint_feet": True})
     method = method_class("onthefly")({"max_steps": 2})

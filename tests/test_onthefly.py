@@ -21,7 +21,7 @@ from motionaug.augment.corpus.rejects import Reject
 from motionaug.augment.corpus.style_examples import load_style_examples
 from motionaug.augment.diffusion import start_step_for
 from motionaug.augment.methods.base import ARTIFACT_JSON, ARTIFACT_WEIGHTS
-from motionaug.augment.methods.hooks import SamplerCallback, sampler_callbacks
+from motionaug.augment.methods.hooks import LossBatch, LossTerm, SamplerCallback, loss_terms, sampler_callbacks
 from motionaug.augment.methods.hooks import SamplerStep as HookStep
 from motionaug.augment.methods.onthefly import (
     ContentPool,
@@ -38,6 +38,7 @@ from motionaug.augment.methods.onthefly import (
     style_vocab,
     trajectory_channels,
 )
+from motionaug.augment.methods.registry import method_class
 from motionaug.augment.motion.features import compute_mean_std
 from motionaug.augment.motion.foot_lock import lock_feet
 from motionaug.augment.motion.tempo import retime
@@ -599,3 +600,25 @@ def test_cuda_finetune_and_transfer_match_cpu(
     np.testing.assert_array_equal(cuda["c0"][:, kept], clips["walk"].motion[:, kept])  # inpainted exactly
     fast = _tiny_run(base_dir, clips, tmp_path / "bf16", lora_rank, bf16=None)  # None: bf16 autocast on CUDA
     assert all(np.isfinite(v).all() for k, v in fast.items() if k != "device")
+
+
+@loss_terms.register("test-joint-l1")
+class JointL1(LossTerm):
+    """A loss term as the lab writes one: mean distance of the predicted joints from the target's, metres."""
+
+    def __call__(self, batch: LossBatch) -> torch.Tensor:
+        return (batch.predicted - batch.target).norm(dim=-1)[batch.mask].mean()
+
+
+def test_a_registered_loss_term_joins_the_fine_tuning_loss(base: BaseModels, clips: dict[str, MotionClip]) -> None:
+    """``loss_terms`` (a hook point, like ``callbacks``) add to L_rec on its path's last x0, in global joints."""
+    term = {"name": "test-joint-l1", "weight": 1.0}
+    params = parse_params(FAST, lambda_s=0.0, max_steps=12, lr=2e-3, loss_terms=[term])
+    pairs = make_pairs(base, [clips["proud_walk"]], params, torch.Generator().manual_seed(0), STYLE_WORDS)
+    curve = finetune(base, pairs, ContentPool([], []), params).curve
+    first = curve[0]
+    assert first["total"] == pytest.approx(first["l_rec"] + first["test-joint-l1"], rel=1e-5)
+    assert np.mean([r["test-joint-l1"] for r in curve[-3:]]) < first["test-joint-l1"]
+    assert "test-joint-l1" not in finetune(base, pairs, ContentPool([], []), parse_params(FAST, max_steps=1)).curve[0]
+    with pytest.raises(MotionDataError, match=r"method\.params\.loss_terms: .*unknown loss term 'nope'"):
+        method_class("onthefly").parse_params({"loss_terms": ["nope"]})

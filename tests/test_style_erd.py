@@ -10,6 +10,7 @@ import torch
 from pydantic import ValidationError
 
 from motionaug.augment.methods.erd import (
+    ErdTrain,
     ErdTrainConfig,
     ErdTrainer,
     StreamingStylizer,
@@ -20,6 +21,7 @@ from motionaug.augment.methods.erd import (
     train_erd,
     transfer,
 )
+from motionaug.augment.methods.hooks import LossBatch, LossTerm, loss_terms
 from motionaug.augment.motion.features import compute_mean_std, feature_slices
 from motionaug.augment.synth import sample_spec
 from motionaug.augment.synth.corpus import spec_to_clip
@@ -369,3 +371,30 @@ def test_bad_stream_input_raises_motion_data_error(clips) -> None:
         assert "\n" not in str(err.value)
     assert stream.frames_seen == 1 and stream.style == "proud"  # bad input left the stream as it was
     assert stream.step(frame) is not None
+
+
+@loss_terms.register("test-joint-l1")
+class JointL1(LossTerm):
+    """A loss term as the lab writes one: mean distance of the predicted joints from the target's, metres."""
+
+    def __call__(self, batch: LossBatch) -> torch.Tensor:
+        return (batch.predicted - batch.target).norm(dim=-1)[batch.mask].mean()
+
+
+def test_a_registered_loss_term_joins_the_generator_loss(clips) -> None:
+    """``train.loss_terms`` plug into Style-ERD's generator loss on its reconstruction's joints (a hook, not a
+    setting: with none, the config's dump is the one models were trained and keyed with before)."""
+    assert "loss_terms" not in ErdTrainConfig(**TINY).model_dump()
+    term = {"name": "test-joint-l1", "weight": 2.0}
+    config = ErdTrainConfig(steps=1, lr_generator=3e-3, residual_output=False, loss_terms=(term,), **TINY)
+    assert ErdTrain(loss_terms=(term,)).recipe().loss_terms == (term,)
+    torch.manual_seed(0)
+    trainer = ErdTrainer(prepare_data(clips, config=config), config)
+    batch = trainer.sample()
+    before = trainer.losses(batch)
+    assert before["test-joint-l1"] > 0
+    for _ in range(6):
+        trainer.generator_step(batch)
+    assert trainer.losses(batch)["test-joint-l1"] < before["test-joint-l1"]
+    with pytest.raises(ValueError, match="unknown loss term 'nope'"):
+        ErdTrainConfig(loss_terms=("nope",))

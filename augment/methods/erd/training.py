@@ -35,7 +35,7 @@ from typing import Any, Literal
 import numpy as np
 import torch
 import torch.nn.functional as F
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_serializer, model_validator
 from safetensors.torch import load_file
 from torch import Tensor, nn
 
@@ -43,7 +43,8 @@ from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.io import read_json_model
 from motionaug.augment.methods.base import Progress
 from motionaug.augment.methods.common import run_steps, write_model_folder
-from motionaug.augment.motion.features import compute_mean_std
+from motionaug.augment.methods.hooks import HookSpec, LossBatch, loss_terms, split_spec
+from motionaug.augment.motion.features import compute_mean_std, recover_from_ric
 from motionaug.augment.motion.rotations import cont6d_to_matrix
 from motionaug.models.style_erd import (
     NEUTRAL,
@@ -132,6 +133,22 @@ class ErdTrainConfig(BaseModel):
     residual_output: bool = Field(True, description="x' = x + D(z', S_hat) (see StyleErdConfig)")
     attention: bool = Field(True, description="FT-Att discriminator; False: Table 1's multi-class baseline")
     learned_init: bool = Field(True, description="learned initial states; False: zeros (Table 1 ablation)")
+    loss_terms: tuple[HookSpec, ...] = Field(
+        (), description="generator-loss terms registered by name (augment.methods.hooks.loss_terms), with weights"
+    )
+
+    @field_validator("loss_terms")
+    @classmethod
+    def _known_terms(cls, specs: tuple[HookSpec, ...]) -> tuple[HookSpec, ...]:
+        return tuple(loss_terms.checked(list(specs)))
+
+    @model_serializer(mode="wrap")
+    def _dump(self, handler: Any) -> dict[str, Any]:
+        """``loss_terms`` left out when empty: the keys of the models trained before it existed stay the same."""
+        data = handler(self)
+        if not self.loss_terms:
+            data.pop("loss_terms", None)
+        return data
 
     @model_validator(mode="after")
     def _check(self) -> ErdTrainConfig:
@@ -184,6 +201,9 @@ class ErdTrain(BaseModel):
     attention: bool = Field(True, description="FT-Att discriminator; False: Table 1's multi-class baseline")
     learned_init: bool = Field(True, description="learned initial states; False: zeros (Table 1 ablation)")
     log_every: int = Field(50, ge=1, description="history interval, steps")
+    loss_terms: tuple[HookSpec, ...] = Field(
+        (), description="generator-loss terms by name (augment.methods.hooks.loss_terms; lab hooks), with weights"
+    )
 
     def recipe(self, size: str = "small", seed: int = 0) -> ErdTrainConfig:
         """The full training config: these settings, the network of ``size`` (``ERD_SIZES``) and ``seed``."""
@@ -362,6 +382,7 @@ class ErdTrainer:
         self.rot_std = self.net.std[self.groups["rot"]].view(-1, 6)
         self.labelled = np.flatnonzero(data.contents < len(data.content_names))
         self.neutral, self.styled = np.flatnonzero(data.styles == 0), np.flatnonzero(data.styles != 0)
+        self.loss_terms = loss_terms.create_all(list(config.loss_terms), "config method.params.train.loss_terms")
 
     # -- sampling --
 
@@ -477,6 +498,12 @@ class ErdTrainer:
             mom = self.moment_loss(batch, fake)
             losses["moments"] = mom
             gen = gen + cfg.w_moments * mom
+        if self.loss_terms:  # on the reconstruction, the one output with a target: global joints, metres
+            joints = [recover_from_ric(x * self.net.std + self.net.mean, T2M.n_joints) for x in (rec, batch["x"])]
+            step = LossBatch(joints[0], joints[1], torch.ones(rec.shape[:2], dtype=torch.bool), self.data.fps)
+            for spec, term in zip(cfg.loss_terms, self.loss_terms):
+                losses[split_spec(spec)[0]] = value = term(step)
+                gen = gen + term.weight * value
         losses |= {"adv": adv, "per": per, "gen": gen}
         return losses
 

@@ -37,12 +37,15 @@ from motionaug.augment.methods.common import (
     style_vocab,
     tempo_setting,
 )
+from motionaug.augment.methods.hooks import LossBatch, LossTerm, loss_terms, split_spec
 from motionaug.augment.methods.onthefly.pairs import StylePairs, kept_channels, neutral_twins
 from motionaug.augment.methods.onthefly.params import OnTheFlyRecipe
+from motionaug.augment.motion.features import recover_from_ric
 from motionaug.augment.training.base_models import BaseModels
 from motionaug.models.lora import adapted_biases, apply_lora
 from motionaug.models.motion_encoder import semantic_loss
 from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.skeleton import T2M
 from motionaug.schemas.styles import StyleSpec
 
 LORA_OUTPUT_LAYERS = ("output_process.poseFinal",)  # biased with ``lora_biases``: the direct pose offset
@@ -81,8 +84,9 @@ def _schedule_index(params: OnTheFlyRecipe) -> tuple[NoiseSchedule, int]:
 
 def reconstruction_loss(
     model: nn.Module, pairs: StylePairs, params: OnTheFlyRecipe, generator: torch.Generator
-) -> Tensor:
-    """L_rec: mean over the DDIM path from K of ||m_s - y0_hat(t)||^2, starting from q_sample(m_sn, K).
+) -> tuple[Tensor, Tensor]:
+    """L_rec: mean over the DDIM path from K of ||m_s - y0_hat(t)||^2, starting from q_sample(m_sn, K); and the
+    path's last x0 (what the loss terms read).
 
     Runs where the pairs are (the model's device); the noise is drawn on CPU from ``generator``.
     """
@@ -100,7 +104,16 @@ def reconstruction_loss(
             steps=params.ddim_steps,
             inpaint=styled.inpaint(kept_channels(params)),
         )
-    return torch.stack([masked_mse(p.float(), styled.x, styled.mask).mean() for p in preds]).mean()
+    return torch.stack([masked_mse(p.float(), styled.x, styled.mask).mean() for p in preds]).mean(), preds[-1].float()
+
+
+def extra_terms(
+    terms: Sequence[tuple[str, LossTerm]], base: BaseModels, x0: Tensor, pairs: StylePairs
+) -> dict[str, Tensor]:
+    """The loss terms (``params.loss_terms``) on the path's last x0 against the style example, global joints."""
+    joints = [recover_from_ric(base.normalizer.denormalize(x), T2M.n_joints) for x in (x0, pairs.styled.x)]
+    step = LossBatch(joints[0], joints[1], pairs.styled.mask.bool(), base.info.fps)
+    return {name: term(step) for name, term in terms}
 
 
 def transferred_path_end(
@@ -228,14 +241,19 @@ def finetune(
     use_s = params.lambda_s > 0 and len(pool) > 0
     if not use_s and params.lambda_rec == 0:
         raise MotionDataError("onthefly fine-tune", "lambda_rec is 0 and no corpus clips for L_s: nothing to learn")
+    where = "config method.params.loss_terms"
+    terms = [(split_spec(spec)[0], loss_terms.create(spec, where)) for spec in params.loss_terms]
     n_steps = _step_plan(len(pool), params)
     plan = _batches(len(pool) if use_s else 0, n_steps, params.batch_size, generator)
     curve: list[dict[str, float]] = []
     start = time.perf_counter()
     for step, indices in enumerate(plan):
-        l_rec = reconstruction_loss(model, pairs, params, generator) if params.lambda_rec > 0 else zero
+        l_rec, x0 = reconstruction_loss(model, pairs, params, generator) if params.lambda_rec > 0 else (zero, None)
         l_s = semantic_guidance_loss(model, base, pool, indices, params, generator) if use_s else zero
         total = params.lambda_rec * l_rec + params.lambda_s * l_s
+        extra = extra_terms(terms, base, x0, pairs) if terms and x0 is not None else {}
+        for name, term in terms:
+            total = total + term.weight * extra.get(name, zero)
         optimizer.zero_grad(set_to_none=True)
         total.backward()
         if params.grad_clip is not None:
@@ -247,6 +265,7 @@ def finetune(
             "step": float(step),
             "l_rec": l_rec.item(),
             "l_s": l_s.item(),
+            **{name: value.item() for name, value in extra.items()},
             "total": total.item(),
             "seconds": time.perf_counter() - start,
         }
