@@ -8,6 +8,7 @@ columns of the outputs. Run it in two worktrees (``--root``) and diff the two ou
     .venv/bin/python bench/bench_behaviour.py --root ../base > /tmp/base.txt
     .venv/bin/python bench/bench_behaviour.py --root . > /tmp/new.txt && diff /tmp/base.txt /tmp/new.txt
 
+``--demo SIZE`` runs ``motionaug demo --size SIZE`` (corpus, base models, run) and prints the same fingerprints.
 ``--bandai2 CORPUS`` runs the four Bandai-2 configs instead through ``motionaug run``'s executor (real Ray) at
 reduced steps (tiny networks, the smoke params), on the ``walk`` takes of the test split in two styles, then
 ``evaluate`` with the on-the-fly run's evaluators: printed are the motion and caption columns of every shard row,
@@ -139,16 +140,35 @@ def run_bandai2(method_name: str, root: Path, corpus: Path, work: Path, evaluato
     return lines
 
 
+def run_demo_size(size: str, work: Path) -> list[str]:
+    """The demo's run at ``size`` from an empty folder; its fingerprint lines."""
+    from motionaug.augment.outputs.shards import iter_shard_rows, row_motion
+    from motionaug.workflows.demo import run_demo
+
+    result = run_demo(work, size=size)
+    columns = ["source_id", "style", "motion", "n_frames", "n_feats", "captions"]
+    rows = sorted(iter_shard_rows(result.run.run_dir, columns=columns), key=lambda r: (r["source_id"], r["style"]))
+    lines = [
+        f"demo-{size} rows {len(rows)} motion {digest(row_motion(r).tobytes() for r in rows)} "
+        f"captions {digest(repr(r['captions']).encode() for r in rows)}"
+    ]
+    for path in sorted(work.rglob("*.safetensors")):
+        lines.append(f"demo-{size} weights {path.relative_to(work)} {digest([path.read_bytes()])}")
+    return lines
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--root", type=Path, default=Path("."), help="the worktree whose code and configs to run")
     parser.add_argument("--configs", default=",".join(CONFIGS), help="comma-separated shipped config names")
     parser.add_argument("--bandai2", type=Path, help="the Bandai-2 corpus: run its four configs through Ray")
+    parser.add_argument("--demo", choices=["tiny", "small"], help="run the demo at this size instead")
     parser.add_argument("--in-tree", action="store_true", help=argparse.SUPPRESS)  # the child run in --root's code
     args = parser.parse_args()
     if not args.in_tree:
         command = [sys.executable, __file__, "--root", str(args.root), "--configs", args.configs, "--in-tree"]
         command += ["--bandai2", str(args.bandai2.resolve())] if args.bandai2 else []
+        command += ["--demo", args.demo] if args.demo else []
         raise SystemExit(subprocess.run(command, env=tree_env(args.root)).returncode)
     import torch
 
@@ -156,6 +176,11 @@ def main() -> None:
 
     print(f"code: {list(motionaug.augment.__path__)}", file=sys.stderr)
     torch.set_num_threads(1)
+    if args.demo:
+        with tempfile.TemporaryDirectory() as tmp:
+            for line in run_demo_size(args.demo, Path(tmp) / "demo"):
+                print(line, flush=True)
+        return
     if args.bandai2:
         with tempfile.TemporaryDirectory() as tmp:
             for name in BANDAI2_METHODS:

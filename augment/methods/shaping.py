@@ -4,8 +4,8 @@ A shaper is a post-process, so it belongs to no method: the workflow's prepare s
 artefact, the style's examples and (when a shaper reads one) each example's reference, a plain pool clip whose root
 moves like the example's, standing in for the example's content performed without the style (``nearest_root_motion``).
 The transfer stage wraps the method's model in ``ShapedModel``, which shapes each output in the corpus's feature
-space with the example the clip's id picks. Applying the same shapers to the content clip without the network is the
-control row every shipped post-process gets (``bench/bench_lso.py``).
+space with the example the clip's id picks. The same shapers applied to the content clip without the network are the
+control row that every shipped post-process gets in the leave-style-out protocol.
 """
 
 from __future__ import annotations
