@@ -113,7 +113,7 @@ def run_bandai2(method_name: str, root: Path, corpus: Path, work: Path, evaluato
     from motionaug.workflows.ray_executor import execute_run
 
     data = yaml.safe_load((root / "configs" / f"bandai2-{method_name}.yaml").read_text())
-    smoke = method_class(method_name).smoke_params
+    smoke = {k: v for k, v in method_class(method_name).smoke_params.items() if k != "shapers"}  # none shipped
     params = dict(data["method"].get("params") or {})
     for key, value in smoke.items():
         params[key] = {**params.get(key, {}), **value} if isinstance(value, dict) else value
