@@ -9,17 +9,22 @@ module by name, without the tests' conftest).
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 from safetensors.numpy import load_file
 
 from motionaug.augment.corpus import Corpus
 from motionaug.augment.methods.hooks import (
+    LossBatch,
+    LossTerm,
     OutputShaper,
     ShapeContext,
     import_hook_modules,
+    loss_terms,
     output_shapers,
     split_spec,
 )
@@ -38,7 +43,15 @@ class ContentBack(OutputShaper):
         return context.content.copy()
 
 
-def run_config(corpus: Path, out: Path, modules: list[str]):
+@loss_terms.register("test-hooks-joints")
+class JointDistance(LossTerm):
+    """Mean distance of the predicted joints from the target's, metres."""
+
+    def __call__(self, batch: LossBatch) -> torch.Tensor:
+        return (batch.predicted - batch.target).norm(dim=-1)[batch.mask].mean()
+
+
+def run_config(corpus: Path, out: Path, modules: list[str], method: dict | None = None):
     styles = [
         {
             "name": "proud",
@@ -49,7 +62,7 @@ def run_config(corpus: Path, out: Path, modules: list[str]):
     data = {
         "corpus": {"path": str(corpus), "filters": {"source_styles": ["neutral"], "min_frames": 40}},
         "styles": styles,
-        "method": {"name": "stats", "params": {}, "shapers": ["moments", "test-content"]},
+        "method": method or {"name": "stats", "params": {}, "shapers": ["moments", "test-content"]},
         "hooks": {"modules": modules},
         "base_models": {"size": "tiny"},
         "compute": {"num_cpus": 2, "batch_size": 4, "unit_size": 4},
@@ -91,3 +104,25 @@ def test_a_shaper_defined_in_a_test_module_runs_in_the_ray_workers(tmp_path: Pat
         np.testing.assert_array_equal(row_motion(row), sources[row["source_id"]].motion)
     shaping = load_file(str(tmp_path / "run" / "styles" / "proud" / SHAPING_FILE))
     assert set(shaping) == {"example.0", "reference.0"}  # the moments shaper's reference, picked at prepare
+
+
+def test_a_loss_term_defined_in_a_test_module_trains_in_the_ray_workers(tmp_path: Path) -> None:
+    """Style-ERD's training runs in a Ray task: the term named in ``train.loss_terms`` joins its loss there."""
+    import ray
+
+    from motionaug.augment.methods.registry import method_class
+    from motionaug.workflows.ray_executor import execute_run
+
+    corpus = tmp_path / "corpus"
+    generate_corpus(corpus, 24, seed=0)
+    smoke = method_class("erd").smoke_params
+    train = {**smoke["train"], "loss_terms": [{"name": "test-hooks-joints", "weight": 0.5}]}
+    method = {"name": "erd", "params": {**smoke, "train": train}}
+    config = run_config(corpus, tmp_path / "run", ["tests.test_hooks"], method)
+    try:
+        summary = execute_run(config)
+    finally:
+        if ray.is_initialized():
+            ray.shutdown()
+    record = json.loads((Path(summary.manifest.base_models) / "erd.json").read_text(encoding="utf-8"))
+    assert all(row["test-hooks-joints"] > 0 for row in record["history"])

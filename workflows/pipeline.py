@@ -390,7 +390,8 @@ class TrainStage(Stage):
                 raise MotionDataError("config base_models.path", reason)
             return str(self.target)
         spec = training_spec(self.config)
-        return str(self.method.train(training_corpus(self.config), self.target, spec, progress=TrainLog()))
+        method = create_method(self.config.method.name, self.config.method.params, self.config.hooks.modules)
+        return str(method.train(training_corpus(self.config), self.target, spec, progress=TrainLog()))
 
 
 class TrainLog:
