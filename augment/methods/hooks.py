@@ -20,10 +20,11 @@ import sys
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
-from typing import Any, ClassVar, Generic, TypeVar
+from typing import Annotated, Any, ClassVar, Generic, TypeVar
 
 import numpy as np
 import torch
+from pydantic import AfterValidator
 
 from motionaug.schemas.errors import MotionDataError
 
@@ -167,6 +168,14 @@ def split_spec(spec: HookSpec) -> tuple[str, dict[str, Any]]:
 sampler_callbacks: Registry[type[SamplerCallback]] = Registry("sampler callback")
 output_shapers: Registry[type[OutputShaper]] = Registry("output shaper", "motionaug.augment.methods.shapers")
 loss_terms: Registry[type[LossTerm]] = Registry("loss term")
+
+
+def _registered_terms(specs: tuple[HookSpec, ...]) -> tuple[HookSpec, ...]:
+    return tuple(loss_terms.checked(list(specs)))
+
+
+LossTerms = Annotated[tuple[HookSpec, ...], AfterValidator(_registered_terms)]
+"""A params field of loss terms: each named one must be registered (a ``ValueError`` for pydantic otherwise)."""
 
 
 def import_hook_modules(modules: Sequence[str]) -> None:

@@ -35,7 +35,7 @@ from typing import Any, Literal
 import numpy as np
 import torch
 import torch.nn.functional as F
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_serializer, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_serializer, model_validator
 from safetensors.torch import load_file
 from torch import Tensor, nn
 
@@ -43,7 +43,7 @@ from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.io import read_json_model
 from motionaug.augment.methods.base import Progress
 from motionaug.augment.methods.common import run_steps, write_model_folder
-from motionaug.augment.methods.hooks import HookSpec, LossBatch, loss_terms, split_spec
+from motionaug.augment.methods.hooks import HookSpec, LossBatch, LossTerms, loss_terms, split_spec
 from motionaug.augment.motion.features import compute_mean_std, recover_from_ric
 from motionaug.augment.motion.rotations import cont6d_to_matrix
 from motionaug.models.style_erd import (
@@ -133,14 +133,9 @@ class ErdTrainConfig(BaseModel):
     residual_output: bool = Field(True, description="x' = x + D(z', S_hat) (see StyleErdConfig)")
     attention: bool = Field(True, description="FT-Att discriminator; False: Table 1's multi-class baseline")
     learned_init: bool = Field(True, description="learned initial states; False: zeros (Table 1 ablation)")
-    loss_terms: tuple[HookSpec, ...] = Field(
+    loss_terms: LossTerms = Field(
         (), description="generator-loss terms registered by name (augment.methods.hooks.loss_terms), with weights"
     )
-
-    @field_validator("loss_terms")
-    @classmethod
-    def _known_terms(cls, specs: tuple[HookSpec, ...]) -> tuple[HookSpec, ...]:
-        return tuple(loss_terms.checked(list(specs)))
 
     @model_serializer(mode="wrap")
     def _dump(self, handler: Any) -> dict[str, Any]:

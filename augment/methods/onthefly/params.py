@@ -7,7 +7,7 @@ from typing import Any, Literal, TypeVar
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from motionaug.augment.diffusion.schedule import NUM_TRAIN_TIMESTEPS
-from motionaug.augment.methods.hooks import HookSpec, loss_terms, sampler_callbacks
+from motionaug.augment.methods.hooks import HookSpec, LossTerms, sampler_callbacks
 from motionaug.augment.motion.tempo import TEMPO_RANGE
 from motionaug.models.lora import DEFAULT_TARGETS as LORA_TARGETS
 from motionaug.schemas.errors import MotionDataError, first_error
@@ -92,8 +92,8 @@ class OnTheFlyParams(BaseModel):
         description="Sampler callbacks by name (augment.methods.hooks) called on every transfer step's x0 prediction, "
         "in order; none by default.",
     )
-    loss_terms: list[HookSpec] = Field(
-        default_factory=list,
+    loss_terms: LossTerms = Field(
+        (),
         description="Fine-tuning loss terms by name (augment.methods.hooks), with weights, on L_rec's last x0 against "
         "the style example; none by default.",
     )
@@ -107,11 +107,6 @@ class OnTheFlyParams(BaseModel):
         None, description="bf16 autocast; None = on CUDA (tensor cores) and on CPUs with bf16 units, else fp32."
     )
     seed: int = 0
-
-    @field_validator("loss_terms")
-    @classmethod
-    def _known_terms(cls, specs: list[HookSpec]) -> list[HookSpec]:
-        return loss_terms.checked(specs)
 
     @field_validator("callbacks")
     @classmethod

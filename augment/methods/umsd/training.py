@@ -57,7 +57,7 @@ from typing import Any, Literal
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_serializer, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_serializer, model_validator
 from safetensors.torch import load_file
 from torch import Tensor
 
@@ -66,7 +66,7 @@ from motionaug.augment.diffusion import NoiseSchedule, SpectralPrior, estimate_s
 from motionaug.augment.io import read_json_model
 from motionaug.augment.methods.base import Progress
 from motionaug.augment.methods.common import run_steps, write_model_folder
-from motionaug.augment.methods.hooks import HookSpec, LossBatch, loss_terms, split_spec
+from motionaug.augment.methods.hooks import HookSpec, LossBatch, LossTerms, loss_terms, split_spec
 from motionaug.augment.motion.batch import pad_batch
 from motionaug.augment.motion.features import Normalizer, compute_mean_std, feature_slices, recover_from_ric
 from motionaug.augment.synth import restyled
@@ -258,14 +258,9 @@ class UmsdTrain(BaseModel):
     synthetic_pairs: bool = Field(False, description="render each synthetic clip in a partner style (module doc)")
     exclude_styles: tuple[str, ...] = Field((), description="styles held out of training (zero-shot, sec. 4.4)")
     log_every: int = Field(50, ge=1, description="history interval, steps")
-    loss_terms: tuple[HookSpec, ...] = Field(
+    loss_terms: LossTerms = Field(
         (), description="more loss terms by name with their weight, e.g. [{name: NAME, weight: 0.1}]"
     )
-
-    @field_validator("loss_terms")
-    @classmethod
-    def _known_terms(cls, specs: tuple[HookSpec, ...]) -> tuple[HookSpec, ...]:
-        return tuple(loss_terms.checked(list(specs)))
 
     def recipe(self, size: str = "small", seed: int = 0) -> UmsdTrainConfig:
         """The full training config: these settings, the network of ``size`` (``NETWORK_SIZES``) and ``seed``."""
