@@ -151,3 +151,14 @@ def test_bench_scripts_use_the_public_api_only() -> None:
             elif isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__"):
                 offenders.append(f"{path.name}:{node.lineno} reads the private {node.attr}")
     assert not offenders, offenders
+
+
+def test_module_docstrings_say_what_and_why_in_at_most_ten_lines() -> None:
+    """Design notes longer than that belong in docs/ (docs/internals.md), not at the top of a module."""
+    long = {}
+    for layer in LAYERS:
+        for path in sorted((REPO / layer).rglob("*.py")):
+            doc = ast.get_docstring(ast.parse(path.read_text(encoding="utf-8")), clean=True)
+            if doc and len(doc.strip().splitlines()) > 10:
+                long[str(path.relative_to(REPO))] = len(doc.strip().splitlines())
+    assert not long, long

@@ -1,17 +1,10 @@
 """The contract between a style-transfer method and the workflow that fans it out.
 
-Every method declares the same steps on ``StyleTransferMethod``; the workflow asks, it never guesses:
-
-- ``Params``: the pydantic model of its parameters, validated when the config is checked (before Ray starts);
-- ``train`` (optional, ``trains = True``): once per run, the models every style shares, written to one folder
-  (on-the-fly: the T2M prior and motion encoder; Style-ERD and UMSD: their network), reused by later runs
-  when ``is_trained`` says the folder already holds them;
-- ``check_style``: a config-time check of one style against what the method can do;
-- ``prepare``: once per style, an artefact folder (``artifact.json`` + files) from the style's examples; a
-  template that checks its arguments around the method's ``prepare_style`` (the workflow records its seconds;
-  on-the-fly: a fine-tuned prior; stats: the example statistics; without per-style learning, the style itself);
-- ``load`` + ``StyleModel.transfer``: a worker loads an artefact once and stylizes batches of clips.
-
+Every method declares the same steps on ``StyleTransferMethod``; the workflow asks, it never guesses: ``Params``
+(validated before Ray starts); ``train`` (optional, ``trains = True``: once per run, the models every style shares,
+reused while ``is_trained`` says a folder holds them); ``check_style`` (config time); ``prepare`` (once per style,
+an artefact folder from the style's examples: a template around the method's ``prepare_style``, timed by the
+workflow); ``load`` + ``StyleModel.transfer`` (a worker loads an artefact once and stylizes batches of clips).
 Artefacts are plain files so the workflow can move them between machines.
 """
 

@@ -1,20 +1,11 @@
 """What every diffusion style-transfer method needs and none of them owns (on-the-fly, Style-ERD, UMSD).
 
-Method-agnostic helpers, each working in the normalised feature space of the base models
-(``BaseModels.normalizer``) where it touches motions:
-
-- threads and devices: ``configure_threads`` applies the count the workflow exported to a worker;
-  ``place_models`` moves the base models to the device a method picked, ``module_device`` says where a network is;
-- randomness: ``seeded_generator`` takes any integer seed, ``clip_noise`` draws a clip's noise from its id, so a
-  clip's output does not depend on its batch mates;
-- batches: ``MotionBatch`` pads and normalises motions, and says which channels to inpaint from a reference;
-  ``trajectory_channels`` are the root-trajectory channels a transfer keeps;
-- captions: the caption a clip is conditioned on, the style vocabulary, neutral and style-revised descriptions
-  (``augment.text.caption_revision``);
-- tempo: the longest clip the models take, retiming to a style's tempo, and the tempo a style setting asks for
-  (``augment.motion.tempo``);
-- artefacts: ``weights.safetensors`` + ``artifact.json`` written atomically (the JSON last) and read back;
-- scores: what a transferred batch is scored on (text-motion cosines, foot skating).
+Method-agnostic helpers, in the base models' normalised feature space where they touch motions: threads and
+devices (``configure_threads``, ``place_models``, ``module_device``); randomness (``seeded_generator``;
+``clip_noise``, a clip's noise from its id, so its output does not depend on its batch mates); batches
+(``MotionBatch``, ``trajectory_channels``); captions (the conditioning caption, the style vocabulary, revised
+descriptions); tempo (the longest clip, retiming); artefacts (``weights.safetensors`` + ``artifact.json``, the JSON
+written last); scores (text-motion cosines, foot skating).
 """
 
 from __future__ import annotations

@@ -1,15 +1,12 @@
-"""Variants that plug into the methods by name, the way diffusers plugs callbacks into a pipeline.
+"""Variants that plug in by name, the way diffusers plugs callbacks into a pipeline.
 
-Three families, each a registry from a name to a factory called with the config's options:
-
-- ``sampler_callbacks``: ``callback(step) -> x0``, called on every sampling step's x0 prediction (``SamplerStep``);
-- ``output_shapers``: ``shaper(output, context) -> output``, called on each transfer output (T, F) in the
-  method's feature space (``ShapeContext``), independent of the method that sampled it;
-- ``loss_terms``: ``term(batch) -> loss``, added to a training step's loss times its weight (``LossBatch``).
-
-A config names a hook as ``name`` or ``{name: ..., option: ...}``. Hooks outside the package register when their
-module is imported: a run config lists such modules (``hooks.modules``), which every Ray worker imports before it
-builds the method (``import_hook_modules``). The product registers the hooks its shipped configs name.
+Three families, each a registry from a name to a factory called with the config's options: ``sampler_callbacks``
+(``callback(step) -> x0`` on every sampling step's x0 prediction, ``SamplerStep``); ``output_shapers``
+(``shaper(output, context) -> output`` on each transfer output (T, F), ``ShapeContext``; the run's, for any method:
+``augment.methods.shaping``); ``loss_terms`` (``term(batch) -> loss``, added to a training step's loss times its
+weight, ``LossBatch``). A config names a hook as ``name`` or ``{name: ..., option: ...}``. Hooks outside the package
+register when their module is imported: a run config lists such modules (``hooks.modules``), which every Ray worker
+imports before it builds the method. The product registers the hooks its shipped configs name.
 """
 
 from __future__ import annotations

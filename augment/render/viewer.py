@@ -1,21 +1,11 @@
 """An interactive 3D viewer of a run or a corpus: ``viewer.html`` plus classic-script data chunks beside it.
 
-Design. The page is hand-written WebGL (``viewer_assets/viewer.js``; no library, no network): line segments for
-bones, the ground grid and the root path, points for foot contacts, one viewport per panel (the content clip and
-each chosen style) under one orbiting camera. A ``file://`` page can neither ``fetch()`` nor load modules, so the
-data are plain scripts that call a global: ``viewer/index.js`` (every clip's ids, captions and per-clip scores, in
-columns) is loaded with the page, and ``viewer/chunks/cNNNNN.js`` (joints of ``CLIPS_PER_CHUNK`` clips each) are
-added as ``<script>`` tags when a clip is picked, so a 10,000-clip run opens as fast as a 10-clip one. Without
-WebGL the page draws key-pose strips on a 2D canvas from the same data.
-
-Encoding, per clip: the root track as float32 (T, 3) and the other joints relative to the root as int16
-millimetres (T, J, 3), base64 (at most half a millimetre off), plus the foot contacts of the HumanML3D rule as one
-hex digit per frame: a fraction of the shards' float32 features.
-
-Clocks: every panel plays on one clock in seconds, each at its own fps; a shorter clip holds its last frame until
-the longest ends, then all loop. ``limb_agreement`` (the default sort, worst first) is the mean Pearson
-correlation of the wrists' and ankles' root-relative trajectories (HumanML3D ``ric`` features) of the stylized clip
-and its content clip, the stylized one resampled to the content's length: a content measure with no classifier.
+Hand-written WebGL (``viewer_assets/viewer.js``; no library, no network; key-pose strips on a 2D canvas without
+WebGL): one viewport per panel (the content clip and each chosen style) under one orbiting camera. A ``file://``
+page can neither ``fetch()`` nor load modules, so the data are plain scripts: ``viewer/index.js`` (ids, captions,
+per-clip scores) loads with the page and ``viewer/chunks/cNNNNN.js`` (joints, ``encode_joints``) when a clip is
+picked, so a 10,000-clip run opens as fast as a 10-clip one. Every panel plays on one clock in seconds; the default
+sort, ``limb_agreement`` (worst first), is a content measure with no classifier. Design notes: docs/internals.md.
 """
 
 from __future__ import annotations

@@ -1,40 +1,11 @@
 """Style-ERD inference: ``transfer`` (whole clips, batched) and ``StreamingStylizer`` (frame by frame, online).
 
-Causality and the one frame of lag
-----------------------------------
-A HumanML3D frame t (``motionaug.augment.motion.features``) mixes channels of pose t with forward differences
-to pose t+1:
-
-=====================  ===========  ======================================================================
-block                  channels     depends on
-=====================  ===========  ======================================================================
-root_rot_vel           0            poses t and t+1 (yaw change t -> t+1)
-root_lin_vel           1:3          poses t and t+1 (root xz step t -> t+1, in the facing frame of t+1)
-root_y                 3            pose t
-ric                    4:67         pose t
-rot                    67:193       pose t (its facing comes from the extractor's smoothed forward direction)
-local_vel              193:259      poses t and t+1 (joint steps t -> t+1, in the facing frame of t)
-feet                   259:263      poses t and t+1 (squared foot step t -> t+1 below 0.002 m^2)
-=====================  ===========  ======================================================================
-
-Input: the stylizer consumes feature frames as they come, so input frame t is usable as soon as it arrives;
-that a feature frame only exists once pose t+1 was captured is the representation's own lag, upstream of us
-(the reference extractor also smooths the facing direction over +-80 frames; a live feature source has to use
-a causal approximation of it, which is outside this module).
-
-Network: causal, zero lag. Output frame t depends on input frames 0..t only (LSTM state), in ``transfer`` and
-``StreamingStylizer`` alike.
-
-Output: the network predicts all 263 channels of frame t from frame t, including the forward-difference ones.
-Root yaw / xz velocities (channels 0:3) are the stylized root trajectory itself (nothing else encodes it), so
-they stay as predicted. ``local_vel`` and ``feet`` are redundant with the positions: with
-``rederive_velocities=True`` (default) they are recomputed from the *stylized* poses t and t+1
-(``rederive_forward``), so the emitted frames are self-consistent like extracted ones. Frame t is then emitted
-when frame t+1 has been produced: ``step`` returns ``None`` for the first frame and frame t-1 afterwards,
-exactly one frame (50 ms at 20 fps) of lag; ``flush`` returns the last frame with the network's own predicted
-velocities and contacts (no t+1 exists), which is also what ``transfer`` does for a clip's last frame. With
-``rederive_velocities=False`` the stylizer has no lag and emits the network's prediction for frame t at once.
-Both paths also project each stylized 6D rotation back onto a rotation (Gram-Schmidt), per frame.
+The network is causal with zero lag: output frame t depends on input frames 0..t. A HumanML3D frame mixes pose t
+with forward differences to pose t+1, so with ``rederive_velocities=True`` (default) the output's ``local_vel``
+and ``feet`` are recomputed from the stylized poses t and t+1 (the root velocities stay as predicted: they are the
+stylized trajectory) and frame t is emitted once t+1 exists, exactly one frame (50 ms at 20 fps) of lag; ``flush``
+returns the last frame with the network's own velocities; ``rederive_velocities=False`` has no lag. Each stylized
+6D rotation is projected back onto a rotation. The channel-by-channel table: docs/internals.md.
 """
 
 from __future__ import annotations

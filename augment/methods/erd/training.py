@@ -1,26 +1,12 @@
 """Train Style-ERD (Tao et al., CVPR 2022, sec. 3.2) on labelled clips; save and load the generator.
 
-``train_erd`` runs two stages at a fixed step count each (never a wall-clock cap), bit-identical for the same
-clips, config, seed and thread count:
-
-1. the content classifier D_C (cross-entropy on content labels), then frozen: its feature maps are the phi
-   of the perceptual loss (Eq. 7);
-2. the generator (Style-ERD) against the FT-Att discriminator, LSGAN-style (Eqs. 4-5) with a gradient penalty
-   on real samples (Eq. 6). Each batch of real windows goes through the generator twice: with its own style as
-   target (reconstruction, Eqs. 2-3) and with the sec. 3.2 transfer target (neutral -> a random other style,
-   any other style -> neutral; adversarial + perceptual losses, and the class-conditional moment loss).
-
-The paper's recipe alone does not stylize at a CPU budget of a few thousand steps (the ablations in lab/NOTES.md):
-the bottleneck + LSTM stack is far from reconstructing, so content is lost, and the adversarial signal is too
-weak and unstable to teach the style branches. The defaults therefore add an output skip (the network learns a
-per-frame style offset), a moment loss (the transfer's change in per-channel window mean and std must match the
-change between the real (source style, content) and (target style, content) clips: every content exists in
-every style in the labelled corpora, unaligned in time), half of each batch from neutral clips, and re-weight
-Eq. 8. ``ErdTrainConfig`` documents how to get the paper's recipe back.
-
-Output folder (written to a temporary sibling, then renamed into place): ``erd.safetensors`` (generator with
-the normaliser buffers), ``critics.safetensors`` (discriminator + content classifier, for inspection),
-``erd.json`` (``ErdArtifact``: style and content names, normaliser, network and training config, losses).
+``train_erd`` runs two stages at fixed step counts, bit-identical for the same clips, config, seed and threads:
+the content classifier D_C (then frozen: its features are Eq. 7's phi), then the generator against the FT-Att
+discriminator (LSGAN, Eqs. 4-6), each batch both reconstructed (Eqs. 2-3) and transferred (sec. 3.2's targets).
+The paper's recipe alone does not stylize at a CPU budget of a few thousand steps, so the defaults add an output
+skip, a class-conditional moment loss and neutral-heavy batches, and re-weight Eq. 8 (docs/internals.md;
+``ErdTrainConfig`` says how to get the paper's recipe back). Output folder, through a temporary sibling:
+``erd.safetensors``, ``critics.safetensors`` (for inspection) and ``erd.json`` (``ErdArtifact``).
 """
 
 from __future__ import annotations

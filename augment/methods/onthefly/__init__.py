@@ -1,27 +1,12 @@
-"""On-the-fly style transfer by fine-tuning a diffusion prior (Hu, Zhang, Ye, Xu, Xia, CGF 2024).
+"""On-the-fly style transfer by fine-tuning a diffusion prior (Hu, Zhang, Ye, Xu, Xia, CGF 2024, secs. 3.2-3.5).
 
-Learning a style from one (or a few) example clips, paper sections 3.2-3.5:
-
-1. Style-neutral pair (Eqs. 3-5): noise the example to step G and denoise it with the *prior* (DDPM) conditioned
-   on the neutral description, inpainting the example's root trajectory at every step. The result m_sn does
-   what the example does, on the same path, without the style.
-2. Fine-tuning: a copy of the prior (all of it, or LoRA adapters) learns m_sn -> m_s along the deterministic DDIM
-   path from step K (L_rec), while a semantic loss L_s keeps corpus motions it transfers close to their
-   style-revised captions in the motion-text space (the motion encoder and text encoder stay frozen).
-3. Transfer (sec. 3.5.2): noise a content clip to K and DDIM-denoise it with the transfer model conditioned on
-   its revised caption, keeping the content's root trajectory by inpainting (sec. 7.1).
-
-Beyond the paper: the transfer keeps the content's clock, but styles change tempo (a depressed walk cycles slower).
-By default the style's tempo is measured from its examples against neutral corpus clips described alike
-(``augment.motion.tempo``) and content clips are retimed to it before the transfer (and in the L_s pool, so the model
-is tuned on what it will see); ``tempo="content"`` keeps the paper's behaviour.
-
-Everything runs in the normalised feature space of the base models (``BaseModels.normalizer``).
-
-The package, by concern: ``params`` (the knobs and their checks), ``pairs`` (step 1 and the inpainted channels),
-``finetuning`` (step 2: losses, trainable selection, the L_s pool, the tempo), ``model`` (step 3: the loaded style),
-``artifact`` (what ``prepare`` writes and ``load`` reads), ``method`` (``OnTheFlyMethod``, the workflow's contract).
-What other diffusion methods share lives in ``augment.methods.common``.
+1. Style-neutral pair (Eqs. 3-5): the example noised to G and denoised by the prior on the neutral description, its
+root trajectory inpainted. 2. Fine-tuning: a copy of the prior (or LoRA adapters) learns m_sn -> m_s along the DDIM
+path from K (L_rec) while L_s keeps transferred corpus motions near their revised captions. 3. Transfer: a content
+clip noised to K and denoised by the tuned model, its root trajectory inpainted. Beyond the paper, content is
+retimed to the style's tempo measured from its examples (``tempo="content"``: the paper's clock). Modules:
+``params``, ``pairs`` (step 1), ``finetuning`` (step 2), ``model`` (step 3), ``artifact``, ``method`` (the
+workflow's contract); what diffusion methods share is in ``augment.methods.common``. Notes: docs/internals.md.
 """
 
 from motionaug.augment.methods.common import (

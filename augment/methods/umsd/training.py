@@ -1,48 +1,12 @@
 """Train UMSD (Qian et al., ACM MM 2025, sec. 3.4) on labelled clips; save and load the network.
 
-Every step draws rows of three kinds from the labelled clips (style and content labels; clips of the synthetic
-corpus that are renderings of the same motion spec in different styles are paired frame for frame, and
-``synthetic_pairs`` renders such a partner for every synthetic clip, so ``rec`` learns from ground truth):
-
-- ``rec`` (ours, supervised transfer): target x0 = a clip of style s with content c; condition content = a clip of
-  content c in another style (neutral when there is one: what a transfer is given); condition style = another
-  clip of style s with other content. Noisy input: the target at t. The paper has no such term (its datasets
-  have no style-transferred ground truth); with labelled pairs it is the one term that teaches transfer itself.
-- ``dcc``, Eq. 10: content m^c and style example n^s *share the style* (c = s), so the output must be the content
-  itself: MSM(m_t^c, t, U(m_0^c, n_0^s)) vs m_0^c, L1. The style example is another clip of the same style label,
-  other content where possible.
-- ``dsc``, Eq. 11: content m^c and style example n^s *share the content* (m = n), so the output must be the style
-  motion: MSM(n_t^s, t, U(m_0^c, n_0^s)) vs n_0^s, L1. The pair is a same-spec rendering in another style where the
-  corpus has one, else a clip with the same content label in another style. As the paper writes it, the target
-  is also the style input (the network may copy it); ``rec`` is the non-leaking version.
-
-Eq. 12 adds L_pos, L_vel and L_foot (Shi et al. 2020; Tevet et al. 2022), computed here on *global joint
-positions* recovered from the predicted features (``recover_from_ric``: the root-relative positions block and
-the integrated root), in metres: L1 on positions, L1 on joint velocities (m/s), and the predicted ankle/toe
-speed (m/s) on the frames where the target's foot-contact channels say the foot is planted. ``w_spec`` (not in
-the paper) adds an L1 between the amplitude spectra over time of the facing-frame joints: a style's rhythm (sway,
-bob, step-rate swings) costs its amplitude when missing whatever its phase, where the L1 on values is lowest for
-no rhythm at all when the phase is uncertain. Every term applies to every row against the row's own target.
-
-The diffusion reconstruction terms use L1 (Eqs. 10-11); the network predicts x0 (sec. 3.4, Ramesh et al.), or
-with ``skip`` x0's residual to the linear estimate of x0 from x_t (``augment.diffusion.skip_x0``), which a network
-narrower than the features otherwise learns slowly enough to end up copying its clean conditions instead. With
-``skip: content`` that estimate's prior is centred on the content condition frame by frame: at high noise the
-prediction starts from the content, so the network learns how the style displaces it rather than how to rebuild
-the content through its token mixers (not in the paper). The linear estimate's prior treats frames as independent,
-so at every noise level it passes into x0 a share of x_t's frame-to-frame noise that the network must cancel;
-``skip_time: spectral`` gives it a stationary prior over time instead (a feature covariance per temporal
-frequency band, ``augment.diffusion.SpectralPrior``), so the skip itself removes the noise at the frequencies
-real motion lacks (not in the paper). Further loss terms plug in by name (``loss_terms``, ``augment.methods.hooks``).
-
-A run config sets ``UmsdTrain`` (``method.params.train``); the network's size comes from ``base_models.size`` and
-the seed from the run. ``UmsdTrain.recipe`` expands them into the full ``UmsdTrainConfig`` the trainer reads and the
-model folder records; research variants (skip_time, content_pace, pace_steps, the network's ablation switches)
-are set on that recipe by the lab only.
-``train_umsd`` runs a fixed number of steps (never a wall-clock cap) and is bit-identical for the same clips,
-config, seed and thread count. Output folder (written to a temporary sibling, then renamed into place):
-``umsd.safetensors`` (weights) and ``umsd.json`` (``UmsdTrainArtifact``: network config, normaliser, training
-config, data summary, losses).
+Each step draws rows of three kinds: ``rec`` (ours: supervised transfer from labelled pairs), ``dcc`` (Eq. 10:
+content and style example share the style, so the output must be the content) and ``dsc`` (Eq. 11: they share the
+content, so the output must be the style motion); Eq. 12's geometric terms apply on recovered global joints, and
+beyond the paper ``w_spec`` (amplitude spectra) and the ``skip`` parametrisations; docs/internals.md says why.
+``UmsdTrain`` (``method.params.train``) expands with the run's size and seed into ``UmsdTrainConfig``.
+``train_umsd`` runs a fixed number of steps, bit-identical for the same clips, config, seed and threads, and
+writes ``umsd.safetensors`` + ``umsd.json`` (``UmsdTrainArtifact``) through a temporary sibling folder.
 """
 
 from __future__ import annotations
