@@ -93,12 +93,14 @@ def test_clips_over_the_runs_limit_are_rejects_with_their_length(corpus: Path, t
 
 
 def test_run_ids_of_configs_without_a_clip_limit_are_unchanged(corpus: Path, tmp_path: Path) -> None:
-    """The run id as it was computed before ``corpus.max_clip_frames`` existed: earlier runs still resume."""
+    """The run id as it was computed before ``corpus.max_clip_frames`` and ``method.shapers`` existed: earlier runs
+    still resume."""
     import hashlib
 
     plain = config(corpus, tmp_path / "a")
     keep = plain.model_dump(mode="json", include={"version", "corpus", "styles", "method", "fan_out", "seed"})
     del keep["corpus"]["max_clip_frames"]
+    del keep["method"]["shapers"]  # added later too, left out at its default in the same way
     keep["batching"] = [plain.compute.unit_size, plain.compute.batch_size]
     keep["corpus"]["path"] = str(Path(keep["corpus"]["path"]).resolve())
     keep["corpus"]["content"] = plain.corpus_fingerprint()
