@@ -35,7 +35,7 @@ MIN_REFERENCE_FRAMES = 8
 
 def pool_size(specs: Sequence[HookSpec]) -> int:
     """How many pool clips the shapers need (0 when none reads a reference)."""
-    return REFERENCE_POOL if specs and needs_reference(specs) else 0
+    return REFERENCE_POOL if needs_reference(specs) else 0
 
 
 def root_motion(motion: np.ndarray) -> np.ndarray:
