@@ -79,6 +79,8 @@ def test_top_level_must_be_a_mapping(tmp_path: Path) -> None:
 
 
 def test_every_shipped_config_loads_and_its_method_params_validate() -> None:
+    """Also what preflight checks of each example without its corpus: the description names the style."""
+    from motionaug.augment.corpus.style_examples import describes_style
     from motionaug.augment.methods.registry import validate_method_params
 
     configs = sorted((Path(__file__).parents[1] / "configs").glob("*.yaml"))
@@ -90,6 +92,9 @@ def test_every_shipped_config_loads_and_its_method_params_validate() -> None:
     for path in configs:
         config = load_run_config(path)
         params = validate_method_params(config.method.name, config.method.params)
+        for style in config.styles:
+            for example in style.examples:
+                assert describes_style(example.description, style.words), (path.name, style.name)
         if path.name == "onthefly-lora-synthetic.yaml":  # the recipe bench/RESULTS.md measured
             assert params["lora_rank"] == 4 and "poseFinal" in params["lora_targets"]
 
