@@ -12,7 +12,7 @@ content index ``len(contents)`` is the learned "unknown content" slot for unlabe
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any, NamedTuple
 
 import torch
@@ -423,6 +423,43 @@ class ErdNetwork(nn.Module):
     def denormalize(self, x: Tensor) -> Tensor:
         return x * self.std + self.mean
 
+    # -- a style added after training --
+
+    def with_style(self, name: str) -> ErdNetwork:
+        """A copy with one more style, last: a new residual branch r_S beside the trained ones (sec. 3.1).
+
+        The paper trains every branch jointly; a style added later gets its branch fitted alone
+        (``augment/methods/erd/branch.py``). Its branch, initial states and the decoder's target column start as
+        the mean of the trained styles', so the fit starts from "some style", not from noise; the encoder's and
+        decoder's source columns for it are zero, since a new style is only ever a target.
+        """
+        cfg = self.config
+        if name in cfg.styles:
+            raise ValueError(f"style {name!r} is already in the network")
+        if not cfg.n_branches:
+            raise ValueError("a network without trained style branches has no style to start a new one from")
+        grown = ErdNetwork(replace(cfg, styles=(*cfg.styles, name)))
+        state = self.state_dict()
+        n_s, dim, latent = cfg.n_styles, cfg.frame_dim, cfg.latent
+        for key in ("w_ih", "w_hh", "bias"):
+            stacked = state[f"recurrent.{key}"]
+            state[f"recurrent.{key}"] = torch.cat([stacked, stacked[:, 1:].mean(1, keepdim=True)], 1)
+        for key in ("h0_style", "c0_style"):
+            init = state[f"recurrent.{key}"]
+            state[f"recurrent.{key}"] = torch.cat([init, init.mean(1, keepdim=True)], 1)
+        w = state["encoder.fc1.weight"]
+        zero = torch.zeros_like(w[:, :1])
+        state["encoder.fc1.weight"] = torch.cat([w[:, : dim + n_s], zero, w[:, dim + n_s :]], 1)
+        w = state["decoder.layers.0.weight"]
+        target = w[:, latent : latent + n_s]
+        zero = torch.zeros_like(w[:, :1])
+        parts = [w[:, :latent], target, target[:, 1:].mean(1, keepdim=True)]
+        if self.decoder.with_source:
+            parts += [w[:, latent + n_s : latent + 2 * n_s], zero, w[:, latent + 2 * n_s :]]
+        state["decoder.layers.0.weight"] = torch.cat(parts, 1)
+        grown.load_state_dict(state, strict=True)
+        return grown.train(self.training)
+
     # -- forward --
 
     def initial_state(self, content: Tensor) -> ErdState:
@@ -494,6 +531,21 @@ class FtAttDiscriminator(nn.Module):
         )
         # w/o attention (Table 1): the baseline of [1, 32], a shared conv trunk with one output head per style
         self.style_heads = None if cfg.attention else nn.Linear(c2, cfg.n_styles)
+
+    def with_style(self, grown: StyleErdConfig) -> FtAttDiscriminator:
+        """A copy for ``grown`` (``ErdNetwork.with_style``'s config): the new style's attention columns, or its
+        head, start as the mean of the trained styles'."""
+        n_s = grown.n_styles - 1
+        critic = FtAttDiscriminator(grown)
+        state = self.state_dict()
+        for key in ("feature_att.0.weight", "temporal_att.0.weight"):
+            w = state[key]
+            state[key] = torch.cat([w[:, :n_s], w[:, 1:n_s].mean(1, keepdim=True), w[:, n_s:]], 1)
+        for key in ("style_heads.weight", "style_heads.bias"):
+            if key in state:
+                state[key] = torch.cat([state[key], state[key][1:].mean(0, keepdim=True)], 0)
+        critic.load_state_dict(state, strict=True)
+        return critic
 
     def forward(self, x: Tensor, style: Tensor, content: Tensor) -> Tensor:
         """``x`` (B, disc_window, D) normalised frames; ``style`` (B, n_styles); ``content`` (B, n_contents) -> (B,)."""

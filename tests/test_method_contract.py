@@ -114,3 +114,33 @@ def test_prepare_checks_its_arguments_once_for_every_method(name: str, corpus: P
         write_timings(prepared, 1.5)
         assert json.loads((prepared.folder / TIMINGS_FILE).read_text())["prepare_s"] == 1.5
         assert sha256_tree(prepared.folder)[1] == len([p for p in prepared.folder.rglob("*") if p.is_file()]) - 1
+
+
+def test_style_erd_learns_a_style_its_network_never_saw_from_the_example_on_ray(corpus: Path, tmp_path: Path) -> None:
+    """The network trains on the corpus without ``old``; ``old`` gets a branch fitted from its example in the
+    prepare task, ``proud`` keeps its trained one, and every clip comes back in both."""
+    import ray
+
+    from motionaug.augment.corpus.style_sets import write_without_styles
+    from motionaug.augment.methods.erd.branch import BRANCH_FILE
+    from motionaug.augment.methods.erd.training import read_artifact
+    from motionaug.workflows.ray_executor import execute_run
+
+    without_old = write_without_styles(corpus, tmp_path / "without-old", ["old"])
+    config = config_for("erd", corpus, tmp_path / "run")
+    config = config.model_copy(update={"base_models": config.base_models.model_copy(update={"corpus": without_old})})
+    check_config(config)
+    try:
+        summary = execute_run(config)
+    finally:
+        if ray.is_initialized():
+            ray.shutdown()
+    assert "old" not in read_artifact(summary.manifest.base_models).styles
+    run = RunDir(tmp_path / "run")
+    folders = {s: run.root / run.artifact(s).path / run.artifact(s).entry for s in ("proud", "old")}
+    assert (folders["old"] / BRANCH_FILE).is_file() and not (folders["proud"] / BRANCH_FILE).exists()
+    record = json.loads((folders["old"] / ARTIFACT_JSON).read_text())
+    assert len(record["examples"]) == 1 and len(record["branch"]["history"]) >= 1
+    table = pq.read_table(run.shards_dir)
+    styles = table.column("style").to_pylist()
+    assert styles.count("old") == styles.count("proud") == summary.manifest.rows // 2 > 0

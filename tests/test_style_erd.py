@@ -398,3 +398,41 @@ def test_a_registered_loss_term_joins_the_generator_loss(clips) -> None:
     assert trainer.losses(batch)["test-joint-l1"] < before["test-joint-l1"]
     with pytest.raises(ValueError, match="unknown loss term 'nope'"):
         ErdTrainConfig(loss_terms=("nope",))
+
+
+# ---- a style the network was not trained on ------------------------------------------------------------------
+
+
+def test_a_new_style_is_a_branch_fitted_from_its_examples_with_every_trained_part_kept(clips, tmp_path) -> None:
+    """``old`` is absent from training; its branch is fitted from its clips alone, the trained styles keep their
+    outputs bit for bit, the moment loss falls, the fit repeats exactly and its saved weights rebuild it."""
+    from safetensors.torch import load_file
+
+    from motionaug.augment.methods.erd.branch import ErdBranchFit, apply_branch, branch_tensors, fit_branch
+
+    seen = [c for c in clips if c.style != "old"]
+    folder = train_erd(seen, tmp_path / "erd", ErdTrainConfig(steps=3, classifier_steps=2, **TINY))
+    net = load_erd(folder)
+    assert "old" not in net.config.styles
+    examples = [c.motion for c in clips if c.style == "old"]
+    pool = {c.id: c.motion for c in clips if c.style == "neutral"}
+    critics = load_file(str(folder / "critics.safetensors"))
+    art = read_artifact(folder)
+    fit = ErdBranchFit(steps=20, batch_size=4)
+    args = (critics, "old", examples, pool, fit, art.data["window_frames"], 4, 0)
+    grown, history = fit_branch(net, *args)
+    again, _ = fit_branch(load_erd(folder), *args)
+
+    assert grown.config.styles == (*net.config.styles, "old")
+    assert history[-1]["moments"] < history[0]["moments"]
+    before = transfer(net, [clips[0].motion], "proud")[0]
+    np.testing.assert_array_equal(transfer(grown, [clips[0].motion], "proud")[0], before)
+    styled = transfer(grown, [clips[0].motion], "old")[0]
+    assert np.isfinite(styled).all() and not np.array_equal(styled, before)
+    np.testing.assert_array_equal(transfer(again, [clips[0].motion], "old")[0], styled)
+    rebuilt = apply_branch(load_erd(folder), "old", {k: v.clone() for k, v in branch_tensors(grown).items()})
+    np.testing.assert_array_equal(transfer(rebuilt, [clips[0].motion], "old")[0], styled)
+    with pytest.raises(MotionDataError, match="missing weights"):
+        apply_branch(load_erd(folder), "old", {"w_ih": branch_tensors(grown)["w_ih"]})
+    with pytest.raises(ValueError, match="already"):
+        net.with_style("proud")

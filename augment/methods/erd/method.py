@@ -1,27 +1,29 @@
-"""Style-ERD behind the method contract: trained once per run on a labelled style corpus, no per-style learning.
+"""Style-ERD behind the method contract: trained once per run on a labelled style corpus; new styles from examples.
 
-``train`` fits the network on the train split of the labelled corpus (all of it without split files) and is
-reused while the corpus and the training config match; ``check_style`` refuses, before Ray starts, a style the
-network has not learnt; ``prepare`` records the style; ``load`` + ``transfer`` stylize whole clips offline with
-the recurrent layers run over each sequence at once (``motionaug stream`` runs the same network frame by frame).
-Content clips reach the network without their labels: read as neutral (supp. C.4) with the learned
-unknown-content initial state, so a corpus without labels and a scored clip are treated alike.
+``train`` fits the network on the train split of the labelled corpus (all of it without split files), reused
+while the corpus and the training config match. ``prepare`` records a style the network learnt, and fits a new
+branch from the examples for any other (``branch.py``). ``load`` + ``transfer`` stylize whole clips offline
+(``motionaug stream`` runs the trained styles frame by frame). Content clips reach the network without labels:
+read as neutral (supp. C.4) with the unknown-content initial state, so a user's corpus and a scored clip are alike.
 """
 
 from __future__ import annotations
 
 import json
+import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, ClassVar
 
 from pydantic import BaseModel, ConfigDict, Field
+from safetensors.torch import load_file, save_file
 
 from motionaug.augment.corpus import MotionClip, Reject
-from motionaug.augment.corpus.humanml3d import read_labels
+from motionaug.augment.io import atomic_write_text
 from motionaug.augment.methods.base import (
     ARTIFACT_JSON,
     CostRates,
+    Prepared,
     Progress,
     StyleModel,
     TrainingSpec,
@@ -32,10 +34,19 @@ from motionaug.augment.methods.common import (
     revised_texts,
     style_vocab,
 )
+from motionaug.augment.methods.erd.branch import BRANCH_FILE, ErdBranchFit, apply_branch, branch_tensors, fit_branch
 from motionaug.augment.methods.erd.stream import transfer
-from motionaug.augment.methods.erd.training import ErdTrain, ErdTrainConfig, load_erd, read_artifact, train_erd
+from motionaug.augment.methods.erd.training import (
+    CRITICS_FILE,
+    ErdTrain,
+    ErdTrainConfig,
+    load_erd,
+    read_artifact,
+    train_erd,
+)
 from motionaug.models.style_erd import NEUTRAL, ErdNetwork
 from motionaug.schemas.errors import MotionDataError
+from motionaug.schemas.skeleton import T2M
 from motionaug.schemas.styles import StyleSpec
 
 METHOD_NAME = "erd"
@@ -57,6 +68,7 @@ class ErdParams(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     train: ErdTrain = Field(default_factory=ErdTrain)
+    branch: ErdBranchFit = Field(default_factory=ErdBranchFit, description="a style the network has not learnt")
     neutral_style: str = Field("neutral", description="The labelled corpus's name for neutral (Bandai: normal).")
     intensity: float = Field(1.0, ge=0.0, le=1.0, description="Style intensity a (sec. 4.4): z' = r_0 + a r_S.")
     caption_variants: int = Field(1, ge=1, description="Revised captions per output clip.")
@@ -69,10 +81,15 @@ class ErdMethod(CorpusTrainedMethod):
     Params: ClassVar[type[BaseModel]] = ErdParams
     cost_rates: ClassVar[CostRates] = CostRates(transfer_clips_per_s=19.0, train_s=733.0)
     params: ErdParams
-    smoke_params: ClassVar[dict[str, Any]] = {
-        "train": {"steps": 3, "batch_size": 4, "window_s": 0.8}  # with base_models.size tiny
+    smoke_params: ClassVar[dict[str, Any]] = {  # with base_models.size tiny
+        "train": {"steps": 3, "batch_size": 4, "window_s": 0.8},
+        "branch": {"steps": 3, "batch_size": 4},
     }
     removed_params: ClassVar[dict[str, str]] = REMOVED_TRAIN
+
+    def content_clips(self) -> int:
+        """Pool clips a new style's branch fit takes its content windows and references from."""
+        return self.params.branch.pool_clips
 
     def training_config(self, spec: TrainingSpec) -> ErdTrainConfig:
         """``train`` with the network of the run's ``base_models.size`` and the run's seed."""
@@ -86,25 +103,71 @@ class ErdMethod(CorpusTrainedMethod):
     # ---- once per style ---------------------------------------------------------------------------------
 
     def check_style(self, style: StyleSpec, trained: Path | None, corpus: Path | None = None) -> None:
-        """The style must be one the network learnt (or, before training, one the labelled corpus has)."""
-        if trained is not None and self.is_trained(trained):
-            known = read_artifact(trained).styles
-        elif corpus is not None and Path(corpus).is_dir():
-            known = sorted({r.get("style") for r in read_labels(Path(corpus)).values() if r.get("style")})
-        else:
-            return
-        known = [self.params.neutral_style if s == NEUTRAL else s for s in known]
-        if style.name not in known:
-            raise MotionDataError(
-                f"config styles: {style.name}", f"Style-ERD has no style {style.name!r}; it knows {sorted(known)}"
-            )
+        """Any style: one the network learnt uses its branch, another gets a branch fitted from its examples."""
+
+    def _trained_name(self, style: str, trained: Path) -> str | None:
+        """``style`` as the network calls it, when the network learnt it."""
+        known = read_artifact(trained).styles
+        name = NEUTRAL if style == self.params.neutral_style else style
+        return name if name in known else None
+
+    def prepare_style(
+        self,
+        style: StyleSpec,
+        examples: Sequence[MotionClip],
+        trained: Path | None,
+        content: Sequence[MotionClip],
+        out: Path,
+        seed: int | None,
+        progress: Progress | None,
+    ) -> Prepared:
+        """A learnt style: its record. Any other: a branch fitted on the examples and the pool (``branch.py``)."""
+        assert trained is not None  # checked by ``prepare``
+        if self._trained_name(style.name, trained) is not None:
+            return super().prepare_style(style, examples, trained, content, out, seed, progress)
+        start = time.perf_counter()
+        info = read_artifact(trained)
+        for example in examples:
+            if float(example.fps) != info.fps:
+                raise MotionDataError(
+                    f"style {style.name!r} example {example.id}", f"{example.fps} fps, the network's {info.fps}"
+                )
+        pool = {c.id: c.motion for c in content if c.motion.ndim == 2 and c.motion.shape[1] == T2M.feature_dim}
+        if not pool:
+            raise MotionDataError(f"style {style.name!r}", "Style-ERD fits a new style on the run's pool: it is empty")
+        fit = self.params.branch
+        net, history = fit_branch(
+            load_erd(trained),
+            load_file(str(Path(trained) / CRITICS_FILE)),
+            style.name,
+            [e.motion for e in examples],
+            pool,
+            fit,
+            window=int(info.data["window_frames"]),
+            disc_stride=info.train.frames(info.fps)[2],
+            seed=0 if seed is None else seed,
+        )
+        out.mkdir(parents=True, exist_ok=True)
+        save_file({k: v.detach().clone().contiguous() for k, v in branch_tensors(net).items()}, str(out / BRANCH_FILE))
+        record = {
+            "method": self.name,
+            "style": style.model_dump(mode="json"),
+            "examples": [c.id for c in examples],
+            "branch": {"fit": fit.model_dump(), "pool": len(pool), "history": history},
+        }
+        atomic_write_text(out / ARTIFACT_JSON, json.dumps(record, indent=1, sort_keys=True) + "\n")
+        return Prepared(out, {"branch_fit_s": time.perf_counter() - start})
 
     def load(self, artifact: Path, trained: Path | None) -> StyleModel:
         if trained is None:
             raise MotionDataError(f"{METHOD_NAME} load", "needs the trained network (the train step's folder)")
         record = json.loads((Path(artifact) / ARTIFACT_JSON).read_text(encoding="utf-8"))
         style = StyleSpec.model_validate(record["style"])
-        return ErdStyleModel(style, load_erd(trained), self.params)
+        net = load_erd(trained)
+        branch = Path(artifact) / BRANCH_FILE
+        if branch.is_file():
+            net = apply_branch(net, style.name, load_file(str(branch)))
+        return ErdStyleModel(style, net, self.params)
 
 
 class ErdStyleModel:
