@@ -50,7 +50,7 @@ from motionaug.augment.motion.foot_lock import lock_feet
 from motionaug.augment.outputs.shards import iter_shard_rows, row_motion
 from motionaug.augment.synth import STYLE_WORDS
 from motionaug.schemas.errors import MotionDataError
-from motionaug.schemas.run_config import RunConfig, load_run_config
+from motionaug.schemas.run_config import RunConfig, apply_overrides, load_run_config
 from motionaug.schemas.skeleton import T2M
 from motionaug.schemas.styles import StyleExample, StyleSpec, StyleWords
 from motionaug.workflows.ray_executor import execute_run
@@ -222,8 +222,9 @@ def method_row(
                 "corpus": str(fold_corpus),
                 "pretrain_if_missing": True,  # on-the-fly's prior too is fitted on the fold corpus, never reused
             }
-            data["output"] = str(args.work / args.fold / f"{tag}{args.row}-{args.split}-d{draw}-k{k}")
+            data["output"] = str(args.work / args.fold / f"{tag}{row_name(args)}-{args.split}-d{draw}-k{k}")
             data["compute"] |= {"num_cpus": 2}
+            data = apply_overrides(data, args.set)
             config = load_run_config(None, data=data)
             check_held_out(config)
             log(f"{args.row}: draw {draw}, k {k}")
@@ -231,6 +232,11 @@ def method_row(
             for row in iter_shard_rows(config.output, columns=["source_id", "style", "motion", "n_frames", "n_feats"]):
                 out.setdefault((row["style"], draw, k), []).append((row["source_id"], row_motion(row)))
     return out
+
+
+def row_name(args: argparse.Namespace) -> str:
+    """The row as units and run folders name it: the method, plus ``--variant`` for a design tried on val."""
+    return f"{args.row}+{args.variant}" if args.variant else args.row
 
 
 def run(args: argparse.Namespace) -> None:
@@ -258,13 +264,14 @@ def run(args: argparse.Namespace) -> None:
         "commit": commit(),
         "corpus": args.kind,
         "fold": args.fold,
-        "row": args.row,
+        "row": row_name(args),
         "split": args.split,
+        "overrides": args.set,
         "k": args.k,
         "seed": args.seed,
         "seconds": round(seconds, 1),
     }
-    write_unit(f"{args.kind}-{args.fold}-{args.row}-{args.split}", result)
+    write_unit(f"{args.kind}-{args.fold}-{row_name(args)}-{args.split}", result)
 
 
 def fmd_or_none(a: np.ndarray, b: np.ndarray, seed: int) -> tuple[float | None, int]:
@@ -522,6 +529,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--row", default="content")
     parser.add_argument("--split", choices=["val", "test"], default="val")
     parser.add_argument("--k", type=int, nargs="+", default=[1, 3])
+    parser.add_argument("--set", action="append", default=[], help="run: KEY=VALUE on the shipped config (a variant)")
+    parser.add_argument("--variant", default="", help="run: the variant's name, in the row and unit file names")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--judge-epochs", type=int, default=40)
