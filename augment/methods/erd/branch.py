@@ -30,7 +30,7 @@ class ErdBranchFit(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    steps: int = Field(150, ge=1, description="branch and critic updates per new style")
+    steps: int = Field(400, ge=1, description="branch and critic updates per new style (chosen on LSO val)")
     batch_size: int = Field(16, ge=2, description="content windows per step")
     lr: float = Field(3e-3, gt=0, description="Adam on the branch; training's generator rate")
     lr_discriminator: float = Field(5e-4, gt=0, description="Adam on the critic; training's rate")
