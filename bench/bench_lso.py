@@ -9,7 +9,8 @@ and fits the judges on the train split without any draw's takes; both are writte
 unit is one (corpus, fold, row, split): the held-out ``normal`` takes of the split go into each of the fold's styles
 for each draw and k, and the per-clip judge readings are written to ``bench/lso/`` (committed). Rows: ``content``
 (the untouched clip), ``moments`` (the moment rule on the content clip, no network: the control of that step),
-``foot_lock`` (on-the-fly's foot lock on the content clip, the control of that step),
+``foot_lock`` (on-the-fly's foot lock on the content clip, the control of that step), ``tempo`` (on-the-fly's
+retiming to the tempo its artefact measured, the control of that step; needs the onthefly unit's run folders),
 and the methods through ``motionaug run`` with trained parts fitted on the corpus without the fold's styles.
 """
 
@@ -47,6 +48,7 @@ from motionaug.augment.methods.shaping import nearest_root_motion
 from motionaug.augment.metrics import matched_fmd, mean_foot_skating
 from motionaug.augment.motion.features import Normalizer, features_to_joints
 from motionaug.augment.motion.foot_lock import lock_feet
+from motionaug.augment.motion.tempo import retime
 from motionaug.augment.outputs.shards import iter_shard_rows, row_motion
 from motionaug.augment.synth import STYLE_WORDS
 from motionaug.schemas.errors import MotionDataError
@@ -60,6 +62,7 @@ RESULTS = REPO / "bench" / "lso"
 NEUTRAL = {"bandai2": "normal", "synthetic": "neutral"}
 CONFIGS = {"bandai2": "bandai2-{method}.yaml", "synthetic": "{method}-synthetic.yaml"}
 DRAWS, K_MAX = 3, 3
+TEMPO_CAP = 196  # on-the-fly's prior's longest clip (its base models' max_frames): a slowed clip is cut there
 CROSS_DRAWS = 2
 STYLE_JUDGES = ("style", "style_clip")
 CROSS_WORDS = {  # Bandai dataset-1's styles that no Bandai-2 or synthetic style stands for, in caption words
@@ -177,6 +180,25 @@ def moment_row(
     return out
 
 
+def tempo_row(args: argparse.Namespace, styles: list[str]) -> Transfers:
+    """On-the-fly's retiming on the content clip, no network (the control of that step): each clip played at the
+    tempo the on-the-fly unit's artefact measured from the same examples, capped as the method caps it."""
+    out: Transfers = {}
+    for style in styles:
+        for draw in range(DRAWS):
+            for k in args.k:
+                run = args.work / args.fold / f"onthefly-{args.split}-d{draw}-k{k}" / "styles" / style
+                found = sorted(run.glob("**/artifact.json"))
+                if not found:
+                    raise MotionDataError(str(run), "no on-the-fly artefact: run the onthefly unit first")
+                tempo = float(json.loads(found[0].read_text(encoding="utf-8"))["tempo"])
+                out[(style, draw, k)] = [
+                    (c.id, c.motion if tempo == 1.0 else retime(c.motion, tempo, max(len(c.motion), TEMPO_CAP)))
+                    for c in blind(scored_clips(args.corpus, args.kind, args.split))
+                ]
+    return out
+
+
 def style_spec(shipped: RunConfig, style: str) -> StyleSpec:
     """The shipped config's spec of ``style``, else (a synthetic style the config does not list) the synthetic
     corpus's own words for it, with a walk described in them."""
@@ -257,6 +279,8 @@ def run(args: argparse.Namespace) -> None:
         transfers = {(s, d, k): sources for s in styles for d in range(DRAWS) for k in args.k}
     elif args.row == "moments":
         transfers = moment_row(args, fold_corpus, draws, styles, train_clips(args.corpus))
+    elif args.row == "tempo":
+        transfers = tempo_row(args, styles)
     else:
         transfers = method_row(args, fold_corpus, draws, styles, train_clips(args.corpus))
     seconds = time.perf_counter() - start
@@ -338,7 +362,7 @@ def summary(result: dict[str, Any], k: int) -> dict[str, float]:
     return out
 
 
-ROW_ORDER = ("content", "moments", "foot_lock", "stats", "onthefly", "erd", "umsd")
+ROW_ORDER = ("content", "moments", "foot_lock", "tempo", "stats", "onthefly", "erd", "umsd")
 
 
 def gather_wide(args: argparse.Namespace) -> None:
