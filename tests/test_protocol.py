@@ -155,7 +155,8 @@ def transferred(run: Path) -> dict[tuple[str, str], tuple[bytes, object]]:
 
 @pytest.mark.parametrize("name", known_methods())
 def test_scored_labels_never_reach_a_method(name: str, corpus: Path, tmp_path: Path) -> None:
-    """Rotating the scored clips' content and style labels changes no output bit (captions are kept)."""
+    """Rotating the scored clips' content and style labels changes no output bit (captions are kept). The trained
+    parts never saw ``old`` (learnt from its example: Style-ERD fits a branch), as in the LSO benchmark."""
     from motionaug.workflows.executor import LocalBackend, run_pipeline
     from motionaug.workflows.pipeline import write_resolved_config
 
@@ -163,14 +164,17 @@ def test_scored_labels_never_reach_a_method(name: str, corpus: Path, tmp_path: P
     permuted = with_permuted_labels(corpus, tmp_path / "permuted-corpus", scored)
     assert [c.content for c in Corpus(permuted, split="test")] != [c.content for c in Corpus(corpus, split="test")]
     examples = draw_examples(TrainView(corpus, scored), ["proud", "old"], k=1, n_draws=1)
+    trained_on = write_without_styles(corpus, tmp_path / "without-old", ["old"])
     outputs = []
     for label, source in (("plain", corpus), ("permuted", permuted)):
-        config = protocol_config(name, source, corpus, tmp_path / f"run-{label}", tmp_path / "trained", examples)
+        config = protocol_config(name, source, trained_on, tmp_path / f"run-{label}", tmp_path / "trained", examples)
         check_held_out(config)
         config.output.mkdir(parents=True)
         write_resolved_config(config)
         run_pipeline(config, LocalBackend())
         outputs.append(transferred(config.output))
+        if name == "erd":  # the unseen style went through the branch fit
+            assert list((config.output / "styles" / "old").rglob("branch.safetensors"))
     assert outputs[0] and outputs[0].keys() == outputs[1].keys()
     assert outputs[0] == outputs[1]
 
