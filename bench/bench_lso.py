@@ -298,6 +298,27 @@ def run(args: argparse.Namespace) -> None:
     write_unit(f"{args.kind}-{args.fold}-{row_name(args)}-{args.split}", result)
 
 
+def step_time(args: argparse.Namespace) -> None:
+    """The per-style step alone, timed: each fold style's ``prepare`` from draw 0's examples at every k, with the
+    unit's trained parts and 64 plain train clips as the pool (the plan's pool size), ``--threads`` threads."""
+    from motionaug.augment.methods.registry import create_method
+
+    shipped = load_run_config(REPO / "configs" / CONFIGS[args.kind].format(method=args.row))
+    shipped = load_run_config(None, data=apply_overrides(json.loads(shipped.model_dump_json()), args.set))
+    method = create_method(shipped.method.name, shipped.method.params)
+    fold_corpus, trained = args.work / args.fold / "corpus", args.work / args.fold / f"{args.row}-trained"
+    originals, draws = train_clips(args.corpus), read_draws(args.kind)
+    pool = [c for c in Corpus(fold_corpus, split="train") if c.style == NEUTRAL[args.kind]][:64]
+    torch.set_num_threads(args.threads)
+    for style in fold_of(args.kind, args.fold).held_out:
+        for k in args.k:
+            examples = [originals[i] for i in examples_of(draws, style, 0, k)]
+            out = args.work / args.fold / "step-time" / f"{args.row}-{style}-k{k}"
+            start = time.perf_counter()
+            method.prepare(style_spec(shipped, style), examples, trained, pool, out, seed=0)
+            print(f"{args.row} {style} k={k}: {time.perf_counter() - start:.1f} s ({args.threads} threads)")
+
+
 def fmd_or_none(a: np.ndarray, b: np.ndarray, seed: int) -> tuple[float | None, int]:
     """``matched_fmd``, or None where the covariances of so few clips have no real square root."""
     try:
@@ -544,7 +565,8 @@ def cross_gather(args: argparse.Namespace) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("command", choices=["setup", "run", "gather", "cross-setup", "cross", "cross-gather"])
+    commands_ = ["setup", "run", "gather", "step-time", "cross-setup", "cross", "cross-gather"]
+    parser.add_argument("command", choices=commands_)
     parser.add_argument("--corpus", type=Path)
     parser.add_argument("--novel", type=Path, help="cross: the Bandai dataset-1 corpus (import-bvh, no split)")
     parser.add_argument("--kind", choices=sorted(LSO_FOLDS), default="bandai2")
@@ -561,7 +583,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--wide", action="store_true", help="gather: one line per row, both folds, k = 1 and 3")
     parser.add_argument("--draws-only", action="store_true", help="setup: fix the example draws, fit no judges yet")
     args = parser.parse_args(argv)
-    commands = {"setup": setup, "run": run, "gather": gather}
+    commands = {"setup": setup, "run": run, "gather": gather, "step-time": step_time}
     commands |= {"cross-setup": cross_setup, "cross": cross_run, "cross-gather": cross_gather}
     commands[args.command](args)
 
