@@ -48,6 +48,19 @@ def config_for(name: str, corpus: Path, out: Path, **method: object):
     return load_run_config(None, data=data)
 
 
+def run_on_ray(config):
+    """``motionaug run``'s executor on an embedded Ray, shut down afterwards."""
+    import ray
+
+    from motionaug.workflows.ray_executor import execute_run
+
+    try:
+        return execute_run(config)
+    finally:
+        if ray.is_initialized():
+            ray.shutdown()
+
+
 def test_every_method_declares_the_contract() -> None:
     for name in known_methods():
         cls = method_class(name)
@@ -61,17 +74,10 @@ def test_every_method_declares_the_contract() -> None:
 
 @pytest.mark.parametrize("name", known_methods())
 def test_method_runs_train_prepare_transfer_on_ray(name: str, corpus: Path, tmp_path: Path) -> None:
-    import ray
-
-    from motionaug.workflows.ray_executor import execute_run
 
     config = config_for(name, corpus, tmp_path / "run")
     method = check_config(config)
-    try:
-        summary = execute_run(config)
-    finally:
-        if ray.is_initialized():
-            ray.shutdown()
+    summary = run_on_ray(config)
     run = RunDir(tmp_path / "run")
     plan = run.read_plan()
     assert plan is not None and plan.n_clips > 0
@@ -119,22 +125,16 @@ def test_prepare_checks_its_arguments_once_for_every_method(name: str, corpus: P
 def test_style_erd_learns_a_style_its_network_never_saw_from_the_example_on_ray(corpus: Path, tmp_path: Path) -> None:
     """The network trains on the corpus without ``old``; ``old`` gets a branch fitted from its example in the
     prepare task, ``proud`` keeps its trained one, and every clip comes back in both."""
-    import ray
 
     from motionaug.augment.corpus.style_sets import write_without_styles
     from motionaug.augment.methods.erd.branch import BRANCH_FILE
     from motionaug.augment.methods.erd.training import read_artifact
-    from motionaug.workflows.ray_executor import execute_run
 
     without_old = write_without_styles(corpus, tmp_path / "without-old", ["old"])
     config = config_for("erd", corpus, tmp_path / "run")
     config = config.model_copy(update={"base_models": config.base_models.model_copy(update={"corpus": without_old})})
     check_config(config)
-    try:
-        summary = execute_run(config)
-    finally:
-        if ray.is_initialized():
-            ray.shutdown()
+    summary = run_on_ray(config)
     assert "old" not in read_artifact(summary.manifest.base_models).styles
     run = RunDir(tmp_path / "run")
     folders = {s: run.root / run.artifact(s).path / run.artifact(s).entry for s in ("proud", "old")}
