@@ -105,12 +105,6 @@ class ErdMethod(CorpusTrainedMethod):
     def check_style(self, style: StyleSpec, trained: Path | None, corpus: Path | None = None) -> None:
         """Any style: one the network learnt uses its branch, another gets a branch fitted from its examples."""
 
-    def _trained_name(self, style: str, trained: Path) -> str | None:
-        """``style`` as the network calls it, when the network learnt it."""
-        known = read_artifact(trained).styles
-        name = NEUTRAL if style == self.params.neutral_style else style
-        return name if name in known else None
-
     def prepare_style(
         self,
         style: StyleSpec,
@@ -123,10 +117,10 @@ class ErdMethod(CorpusTrainedMethod):
     ) -> Prepared:
         """A learnt style: its record. Any other: a branch fitted on the examples and the pool (``branch.py``)."""
         assert trained is not None  # checked by ``prepare``
-        if self._trained_name(style.name, trained) is not None:
-            return super().prepare_style(style, examples, trained, content, out, seed, progress)
         start = time.perf_counter()
         info = read_artifact(trained)
+        if self._name(style.name) in info.styles:
+            return super().prepare_style(style, examples, trained, content, out, seed, progress)
         for example in examples:
             if float(example.fps) != info.fps:
                 raise MotionDataError(
@@ -157,6 +151,10 @@ class ErdMethod(CorpusTrainedMethod):
         }
         atomic_write_text(out / ARTIFACT_JSON, json.dumps(record, indent=1, sort_keys=True) + "\n")
         return Prepared(out, {"branch_fit_s": time.perf_counter() - start})
+
+    def _name(self, style: str) -> str:
+        """``style`` as the network calls it (the corpus's neutral is ``neutral``)."""
+        return NEUTRAL if style == self.params.neutral_style else style
 
     def load(self, artifact: Path, trained: Path | None) -> StyleModel:
         if trained is None:
