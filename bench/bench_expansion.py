@@ -26,6 +26,12 @@ Stages, each reused from WORK when finished (rerun the same command to resume):
    guidance ``--guidance``, judged by the judge. Writes WORK/results.json, prints a Markdown table; ``--plots DIR``
    writes the PNGs.
 
+``--fold fold1`` runs the protocol under the leave-style-out rule (issue 41, item 5; docs/expansion.md): A lacks the
+fold's styles (``augment.eval.protocol.LSO_FOLDS``); on ``bandai2`` their train takes are split in two halves by take
+id (``judge_half``): C adds one, the examples (one ``walk`` take per style, k = 1) come from it, and the judge trains
+on A's train split plus the other. Each method runs with its shipped config's settings (``configs/``), the base models
+it reads fitted on A alone, its pools from A's train split.
+
 ``--prior-seeds 0,1,2`` pre-trains A, B and C once per seed (the methods' own data and base models stay seed 0's)
 and reports the means, with each seed's figures and the spread in results.json: a single prior's recognition on
 ~100 captions moves by more than the 3-point content target with its seed or thread count.
@@ -53,6 +59,7 @@ from motionaug.augment.eval.expansion import (
     Judge,
     StyleSplit,
     gain_share,
+    judge_clips,
     mean_figures,
     merge_clips,
     run_clips,
@@ -60,12 +67,15 @@ from motionaug.augment.eval.expansion import (
     split_by_style,
     true_stylized,
 )
+from motionaug.augment.eval.protocol import fold_of
 from motionaug.augment.motion.features import features_to_joints
 from motionaug.augment.training.pretrain import PretrainConfig, ensure_base_models
+from motionaug.schemas.run_config import load_run_config
 
 REPO = Path(__file__).resolve().parents[1]
 BANDAI2 = REPO.parent / "shared" / "data" / "bandai" / "dataset-2"
 SYNTH_MISSING = ("angry", "old", "sneaky", "strutting")
+CONFIGS = {"bandai2": "bandai2-{method}.yaml", "synthetic": "{method}-synthetic.yaml"}  # the shipped settings
 
 
 def log(message: str) -> None:
@@ -153,12 +163,12 @@ def style_words(args: argparse.Namespace) -> dict[str, Any]:
         from motionaug.augment.synth import STYLE_WORDS
 
         return dict(STYLE_WORDS)
-    from motionaug.schemas.run_config import load_run_config
-
     return {s.name: s.words for s in load_run_config(REPO / "configs" / "bandai2-onthefly.yaml").styles}
 
 
 def missing_styles(args: argparse.Namespace) -> list[str]:
+    if args.fold:
+        return list(fold_of(args.protocol, args.fold).held_out)
     if args.missing:
         return args.missing.split(",")
     return list(SYNTH_MISSING) if args.protocol == "synthetic" else [s for s in style_words(args) if s != "normal"]
@@ -192,19 +202,33 @@ def run_config(args: argparse.Namespace, work: Path, split: StyleSplit, method: 
     ]
     base_models: dict[str, Any] = {"path": str(work / "priors" / method_base(args)), "pretrain_if_missing": False}
     # erd and umsd train their network in the run, on a labelled style corpus whose train split holds no held-out clip
+    # (under --fold: A itself, which lacks the missing styles too)
     if method_of(method) in ("erd", "umsd"):
-        base_models = {"path": str(work / "networks" / method), "corpus": str(work / "corpus")}
+        corpus = work / "split" / BASE_DIR if args.fold else work / "corpus"
+        base_models = {"path": str(work / "networks" / method), "corpus": str(corpus)}
+    source: dict[str, Any] = {"path": str(work / "split" / BASE_DIR), "split": "expand", "filters": {"max_frames": 199}}
     return {
         "version": 1,
-        "corpus": {"path": str(work / "split" / BASE_DIR), "split": "expand", "filters": {"max_frames": 199}},
+        "corpus": source | ({"pool_split": "train"} if args.fold else {}),
         "styles": styles,
-        "method": {"name": method_of(method), "params": params_of(args, method)},
+        "method": method_section(args, method),
         "base_models": base_models,
         "fan_out": {"per_clip": "all", "seed": 0},
         "compute": {"num_cpus": args.threads, "batch_size": 32, "unit_size": 256},
         "output": str(work / "runs" / method),
         "seed": 0,
     }
+
+
+def method_section(args: argparse.Namespace, label: str) -> dict[str, Any]:
+    """The run's ``method``: under ``--fold`` the shipped config's (its settings and output steps, as an LSO unit
+    runs it) with ``--params`` laid over them; otherwise the method's defaults with ``--params``."""
+    section: dict[str, Any] = {"name": method_of(label), "params": {}}
+    if args.fold:
+        name = CONFIGS[args.protocol].format(method=method_of(label))
+        section = load_run_config(REPO / "configs" / name).model_dump(mode="json")["method"]
+    section["params"] = {**section.get("params", {}), **params_of(args, label)}
+    return section
 
 
 def params_of(args: argparse.Namespace, label: str) -> dict[str, Any]:
@@ -438,6 +462,7 @@ def main() -> None:
         help="comma-separated: stats, onthefly, erd, umsd; METHOD-LABEL adds another B of METHOD (own --params)",
     )
     parser.add_argument("--missing", default=None, help="styles A lacks (default: synthetic 4, bandai2 all 6)")
+    parser.add_argument("--fold", default=None, help="the leave-style-out rule: A lacks this LSO fold's styles")
     parser.add_argument("--clips", type=int, default=800, help="synthetic corpora size")
     parser.add_argument("--expand", type=int, default=100, help="neutral train clips of A to stylize (0 = all)")
     parser.add_argument("--size", default="small", choices=("tiny", "small"), help="pre-training preset")
@@ -478,9 +503,17 @@ def main() -> None:
         n_expand = args.expand or None
         words = style_words(args)
         missing = missing_styles(args)
-        split_fn = lambda: split_by_style(corpus, work / "split", missing, neutral, n_expand, words=words)  # noqa: E731
+        halves = bool(args.fold) and args.protocol == "bandai2"  # synthetic: the judge has a corpus of its own
+        split_fn = lambda: split_by_style(  # noqa: E731
+            corpus, work / "split", missing, neutral, n_expand, words=words, halves=halves
+        )
         timed(work, "split", split_fn)
     split = StyleSplit.read(work / "split")
+    if split.judge_ids:  # the judge learns the missing styles from the half C never adds
+        judge_corpus = work / "corpora" / "judge"
+        if not (judge_corpus / "Mean.npy").is_file():
+            merge = lambda: merge_clips(work / "split" / BASE_DIR, judge_clips(work / "split"), judge_corpus)  # noqa: E731
+            timed(work, "corpus_judge", merge)
     log(f"A lacks {split.missing}; base splits {split.base_splits}; held out {split.held_out}")
     pretrain(args, work, "judge", judge_corpus, judge_config(args))
     judge = Judge(work / "priors" / "judge")
@@ -497,6 +530,8 @@ def main() -> None:
     scores = {name: runs["mean"] for name, runs in by_seed.items()}
     results = {
         "protocol": args.protocol,
+        "fold": args.fold,
+        "judge_takes_set_aside": len(split.judge_ids),
         "missing": split.missing,
         "present": split.present,
         "base_splits": split.base_splits,

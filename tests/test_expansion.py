@@ -15,6 +15,7 @@ from motionaug.augment.eval.expansion import (
     Judge,
     StyleSplit,
     gain_share,
+    judge_clips,
     mean_figures,
     merge_clips,
     score_prior,
@@ -80,6 +81,19 @@ def test_base_lacks_the_missing_styles_in_motions_and_captions(split: Path) -> N
         assert read_clips(info.corpus, [example["id"]])[0].style == style
         assert np.load(split / example["path"]).shape[1] == 263
     assert len(info.expand_ids) == 6 and set(info.expand_ids) <= set(split_ids(base, "train"))
+
+
+def test_halves_keep_the_judges_takes_out_of_c_and_the_examples(split: Path, tmp_path: Path) -> None:
+    corpus = Path(StyleSplit.read(split).corpus)
+    info = split_by_style(corpus, tmp_path / "halves", MISSING, n_expand=6, seed=0, halves=True)
+    judge = {c.id for c in judge_clips(tmp_path / "halves")}
+    truth = {c.id for c in true_stylized(tmp_path / "halves", mode="corpus")}
+    missing_train = {c.id for c in read_clips(corpus, split_ids(corpus, "train")) if c.style in MISSING}
+    assert judge == set(info.judge_ids) and judge and truth and not judge & truth
+    assert judge | truth == missing_train and len(judge) <= len(truth)  # C's half takes each first take
+    assert not {e["id"] for e in info.examples.values()} & judge
+    # without halves nothing is set aside and C holds every train clip of the missing styles
+    assert {c.id for c in true_stylized(split, mode="corpus")} == missing_train
 
 
 def test_split_refuses_unknown_or_neutral_styles(split: Path, tmp_path: Path) -> None:

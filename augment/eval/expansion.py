@@ -24,6 +24,7 @@ from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.corpus.humanml3d import ADDED_SPLIT, write_humanml3d
 from motionaug.augment.diffusion import bind_model, ddim_sample
 from motionaug.augment.eval.evaluation import Classifiers, load_classifiers
+from motionaug.augment.eval.protocol import take_of
 from motionaug.augment.io import atomic_save_npy, atomic_write_text
 from motionaug.augment.metrics import diversity, frechet_distance, retrieval_r_at_k
 from motionaug.augment.motion.features import Normalizer, compute_mean_std
@@ -57,6 +58,10 @@ class StyleSplit(BaseModel):
     base_splits: dict[str, int]
     held_out: dict[str, int] = Field(description="held-out clips per group (neutral / present / style_prompted)")
     dropped_for_captions: int = 0
+    judge_ids: list[str] = Field(
+        default_factory=list,
+        description="the missing styles' train clips set aside for the judge: neither C nor the examples use them",
+    )
 
     @classmethod
     def read(cls, folder: str | Path) -> StyleSplit:
@@ -109,6 +114,18 @@ def _pick_examples(clips: Sequence[MotionClip], missing: Sequence[str], content:
     return picked
 
 
+def judge_half(clips: Sequence[MotionClip], missing: Sequence[str]) -> set[str]:
+    """The judge's half of the missing styles' train takes: per (style, content), the takes in id order go to C's
+    half and the judge's in turn, so both halves hold every content and C's holds each first take (the example's).
+    A cut take's pieces stay together (``take_of``)."""
+    takes: dict[tuple[str, str | None], set[str]] = {}
+    for clip in clips:
+        if clip.style in missing:
+            takes.setdefault((clip.style, clip.content), set()).add(take_of(clip.id))
+    judge_takes = {t for group in takes.values() for t in sorted(group)[1::2]}
+    return {c.id for c in clips if c.style in missing and take_of(c.id) in judge_takes}
+
+
 def split_by_style(
     corpus: str | Path,
     out: str | Path,
@@ -118,12 +135,15 @@ def split_by_style(
     seed: int = 0,
     example_content: str | None = "walk",
     words: Mapping[str, StyleWords] | None = None,
+    halves: bool = False,
 ) -> StyleSplit:
     """Split a labelled corpus into a base corpus lacking ``missing`` (motions and captions), a held-out set
     (the corpus's test split, every style) and one example clip per missing style (train split, outside the base).
 
     The base keeps the corpus's splits, adds an ``expand`` split (``n_expand`` of its neutral train clips, or all,
-    for the expansion run to stylize) and gets Mean/Std from its own train split.
+    for the expansion run to stylize) and gets Mean/Std from its own train split. With ``halves`` the missing
+    styles' train takes are split in two (``judge_half``): C and the examples use one half, the judge trains on the
+    other, so the judge never saw a clip C adds or an example B learnt from.
     """
     corpus, root = Path(corpus), Path(out)
     if root.exists() and any(root.iterdir()):
@@ -135,7 +155,9 @@ def split_by_style(
     for clip in clips:
         clip.meta = {**clip.meta, "split": split_of[clip.id]}
     held = [c for c in clips if split_of[c.id] == "test"]
-    examples = _pick_examples([c for c in clips if split_of[c.id] == "train"], missing, example_content)
+    train = [c for c in clips if split_of[c.id] == "train"]
+    judge_ids = judge_half(train, missing) if halves else set()
+    examples = _pick_examples([c for c in train if c.id not in judge_ids], missing, example_content)
     kept = [c for c in clips if c.style not in missing and split_of[c.id] != "test"]
     base = [c for c in kept if not any(named.search(cap.text) for cap in c.captions)]
     base += [c for c in held if c.style not in missing and not any(named.search(cap.text) for cap in c.captions)]
@@ -158,6 +180,7 @@ def split_by_style(
         base_splits={k: len(v) for k, v in splits.items()},
         held_out={g: sum(group_of(c.style, neutral, missing) == g for c in held) for g in GROUPS},
         dropped_for_captions=len(kept) + sum(c.style not in missing for c in held) - len(base),
+        judge_ids=sorted(judge_ids),
     )
     atomic_write_text(root / SPLIT_JSON, result.model_dump_json(indent=1) + "\n")
     return result
@@ -196,7 +219,8 @@ def true_stylized(split_dir: str | Path, mode: Literal["auto", "rerender", "corp
 
     ``rerender`` (synthetic corpora, whose clips carry their render spec): each ``expand`` clip rendered in each
     missing style, so C holds the same (source, style) pairs an expansion run makes, only true.
-    ``corpus``: the labelled corpus's own train clips of the missing styles (real data, e.g. Bandai-2's takes).
+    ``corpus``: the labelled corpus's own train clips of the missing styles (real data, e.g. Bandai-2's takes),
+    without the judge's half where the split set one aside.
     """
     root = Path(split_dir)
     split = StyleSplit.read(root)
@@ -208,7 +232,14 @@ def true_stylized(split_dir: str | Path, mode: Literal["auto", "rerender", "corp
         return
     corpus = Path(split.corpus)
     train = read_clips(corpus, split_ids(corpus, "train"))
-    yield from (_as_train(c) for c in train if c.style in split.missing)
+    judge = set(split.judge_ids)
+    yield from (_as_train(c) for c in train if c.style in split.missing and c.id not in judge)
+
+
+def judge_clips(split_dir: str | Path) -> list[MotionClip]:
+    """The missing styles' train clips the split set aside for the judge (empty without ``halves``)."""
+    split = StyleSplit.read(split_dir)
+    return [_as_train(c) for c in read_clips(Path(split.corpus), split.judge_ids)]
 
 
 def _as_train(clip: MotionClip) -> MotionClip:
