@@ -357,14 +357,32 @@ def spread(by_seed: dict[str, dict[str, Any]]) -> dict[str, dict[str, float]]:
     return out
 
 
-def summarise(scores: dict[str, dict], methods: list[str]) -> dict[str, Any]:
-    """Per method: B's gain over A as a share of C's, and the issue's targets (on the means over prior seeds)."""
+def paired_gains(by_seed: dict[str, dict[str, Any]], name: str) -> dict[str, Any]:
+    """B - A per prior seed both were trained with (style on style-prompted captions, neutral content), in points:
+    the seed-paired differences whose mean the targets read, and their spread."""
+    a, b = by_seed["A"]["seeds"], by_seed[name]["seeds"]
+    seeds = [s for s in b if s in a]
+    style = [100 * (b[s]["style_prompted"]["style"] - a[s]["style_prompted"]["style"]) for s in seeds]
+    content = [100 * (neutral_of(b[s])["content"] - neutral_of(a[s])["content"]) for s in seeds]
+    return {
+        "seeds": seeds,
+        "style": style,
+        "content": content,
+        "style_sd": float(np.std(style)),
+        "content_sd": float(np.std(content)),
+    }
+
+
+def summarise(scores: dict[str, dict], methods: list[str], by_seed: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """Per method: B's gain over A as a share of C's, and the issue's targets (on the means over prior seeds, which
+    equal the seed-paired means where A and B share their seeds)."""
     a, c = scores["A"], scores["C"]
     out: dict[str, Any] = {}
     for method in methods:
         b = scores[f"B_{method}"]
         sra = [s["style_prompted"]["style"] for s in (a, b, c)]
         out[method] = {
+            "paired_by_seed": paired_gains(by_seed, f"B_{method}"),
             "style_gain_points": 100 * (sra[1] - sra[0]),
             "style_share_of_C": gain_share(*sra),
             "neutral_content_drop_points": 100 * (neutral_of(a)["content"] - neutral_of(b)["content"]),
@@ -544,7 +562,7 @@ def main() -> None:
         "scores_by_seed": {name: runs["seeds"] for name, runs in by_seed.items()},
         "spread_over_seeds": spread(by_seed),
         "added_clips_judged": {n: added_recognition(work, judge, n) for n in [*(f"B_{m}" for m in methods), "C"]},
-        "summary": summarise(scores, methods),
+        "summary": summarise(scores, methods, by_seed),
         "timings": json.loads((work / "timings.json").read_text()),
         "load": os.getloadavg(),
     }
