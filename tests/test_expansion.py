@@ -180,3 +180,11 @@ def test_commands_split_and_truth(split: Path, tmp_path: Path) -> None:
     assert "old" in {c.style for c in clips} and "angry" in {c.style for c in clips}  # angry stays in this A
     bad = runner.invoke(app, ["expansion", "split", corpus, "--out", str(tmp_path / "t"), "--missing", "sneaky"])
     assert bad.exit_code == 1 and "missing styles" in bad.output and len(bad.output.strip().splitlines()) == 1
+    no_half = runner.invoke(app, ["expansion", "judge-corpus", str(tmp_path / "s"), "--out", str(tmp_path / "j")])
+    assert no_half.exit_code == 1 and "--halves" in no_half.output and len(no_half.output.strip().splitlines()) == 1
+    cmd = ["expansion", "split", corpus, "--out", str(tmp_path / "h"), "--missing", "old", "--halves"]
+    assert runner.invoke(app, cmd).exit_code == 0
+    judged = runner.invoke(app, ["expansion", "judge-corpus", str(tmp_path / "h"), "--out", str(tmp_path / "j")])
+    assert judged.exit_code == 0, judged.output
+    judge_train = {c.id for c in read_clips(tmp_path / "j", split_ids(tmp_path / "j", "train")) if c.style == "old"}
+    assert judge_train == set(StyleSplit.read(tmp_path / "h").judge_ids)

@@ -30,6 +30,9 @@ def split_command(
     neutral: Annotated[str, typer.Option(help="The corpus's neutral style label.")] = "neutral",
     expand: Annotated[int | None, typer.Option(help="Neutral train clips of A to stylize (default: all).")] = None,
     seed: Annotated[int, typer.Option(help="Seed of the --expand draw.")] = 0,
+    halves: Annotated[
+        bool, typer.Option(help="Set half the missing styles' train takes aside for a judge (see judge-corpus).")
+    ] = False,
 ) -> None:
     """Write A (the corpus without the missing styles, in motions and captions), the held-out set and examples."""
     from motionaug.augment.eval.expansion import split_by_style
@@ -37,12 +40,35 @@ def split_command(
 
     styles = [s for s in missing.split(",") if s]
     with off_terminal("expansion split"):
-        s = run_safely(lambda: split_by_style(corpus, out, styles, neutral, expand, seed, words=STYLE_WORDS))
+        s = run_safely(
+            lambda: split_by_style(corpus, out, styles, neutral, expand, seed, words=STYLE_WORDS, halves=halves)
+        )
     console.print(
         f"A: {s.base_splits} clips (styles {s.present}); held out {s.held_out}; {len(s.expand_ids)} clips to expand; "
         f"examples {[e['path'] for e in s.examples.values()]}; {s.dropped_for_captions} dropped for naming a "
-        f"missing style; in {out}"
+        f"missing style; {len(s.judge_ids)} set aside for the judge; in {out}"
     )
+
+
+@expansion_app.command("judge-corpus")
+def judge_corpus_command(
+    split: Annotated[Path, typer.Argument(help="A folder made by `motionaug expansion split --halves`.")],
+    out: Annotated[Path, typer.Option(help="New folder: A plus the missing styles' takes set aside for the judge.")],
+) -> None:
+    """Write the judge's corpus when it must come from the same corpus: A plus the half of the missing styles' train
+    takes that neither C nor the examples use, so the judge never saw a clip C adds or B learnt from."""
+    from motionaug.augment.eval.expansion import BASE_DIR, judge_clips, merge_clips
+    from motionaug.schemas.errors import MotionDataError
+
+    def write() -> dict[str, int]:
+        clips = judge_clips(split)
+        if not clips:
+            raise MotionDataError(str(split), "no takes were set aside for a judge (make the split with --halves)")
+        return merge_clips(split / BASE_DIR, clips, out)
+
+    with off_terminal("expansion judge-corpus"):
+        sizes = run_safely(write)
+    console.print(f"judge corpus: {sizes} clips per split, in {out}")
 
 
 @expansion_app.command("truth")
