@@ -207,9 +207,11 @@ def run_config(args: argparse.Namespace, work: Path, split: StyleSplit, method: 
         corpus = work / "split" / BASE_DIR if args.fold else work / "corpus"
         base_models = {"path": str(work / "networks" / method), "corpus": str(corpus)}
     source: dict[str, Any] = {"path": str(work / "split" / BASE_DIR), "split": "expand", "filters": {"max_frames": 199}}
+    if args.fold:  # as an LSO unit: pools of A's neutral train clips (the shipped configs' source filter)
+        source |= {"pool_split": "train", "filters": {"max_frames": 199, "source_styles": [split.neutral]}}
     return {
         "version": 1,
-        "corpus": source | ({"pool_split": "train"} if args.fold else {}),
+        "corpus": source,
         "styles": styles,
         "method": method_section(args, method),
         "base_models": base_models,
