@@ -426,7 +426,9 @@ def test_a_new_style_is_a_branch_fitted_from_its_examples_with_every_trained_par
     assert grown.config.styles == (*net.config.styles, "old")
     assert history[-1]["moments"] < history[0]["moments"]
     before = transfer(net, [clips[0].motion], "proud")[0]
-    np.testing.assert_array_equal(transfer(grown, [clips[0].motion], "proud")[0], before)
+    # kept up to float rounding: the grown network stacks one more branch, so its batched matmuls have other shapes
+    # and a CPU's BLAS may sum them in another order (a last-bit difference on some machines, none on others)
+    np.testing.assert_allclose(transfer(grown, [clips[0].motion], "proud")[0], before, rtol=0, atol=1e-6)
     styled = transfer(grown, [clips[0].motion], "old")[0]
     assert np.isfinite(styled).all() and not np.array_equal(styled, before)
     np.testing.assert_array_equal(transfer(again, [clips[0].motion], "old")[0], styled)
