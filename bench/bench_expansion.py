@@ -45,12 +45,14 @@ import os
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
 
+from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.eval.evaluation import classify
 from motionaug.augment.eval.expansion import (
     BASE_DIR,
@@ -69,6 +71,8 @@ from motionaug.augment.eval.expansion import (
 )
 from motionaug.augment.eval.protocol import fold_of
 from motionaug.augment.motion.features import features_to_joints
+from motionaug.augment.motion.foot_lock import lock_feet
+from motionaug.augment.motion.tempo import retime
 from motionaug.augment.training.pretrain import PretrainConfig, ensure_base_models
 from motionaug.schemas.run_config import load_run_config
 
@@ -76,6 +80,9 @@ REPO = Path(__file__).resolve().parents[1]
 BANDAI2 = REPO.parent / "shared" / "data" / "bandai" / "dataset-2"
 SYNTH_MISSING = ("angry", "old", "sneaky", "strutting")
 CONFIGS = {"bandai2": "bandai2-{method}.yaml", "synthetic": "{method}-synthetic.yaml"}  # the shipped settings
+
+
+TEMPO_CAP = 196  # on-the-fly's prior's longest clip (its base models' max_frames): a slowed clip is cut there
 
 
 def log(message: str) -> None:
@@ -255,6 +262,35 @@ def expand(args: argparse.Namespace, work: Path, split: StyleSplit, method: str)
         lambda: subprocess.run(cmd, check=True, env={**os.environ, "RAY_USAGE_STATS_ENABLED": "0"}),
     )
     timed(work, f"merge_{method}", lambda: merge_clips(work / "split" / BASE_DIR, run_clips(run_dir), out))
+    return out
+
+
+def control(work: Path, method: str) -> Path:
+    """The control of ``method``'s output steps (issue 41: every post-process gets its row): A plus, for each clip
+    the method's run added, its source clip through the same steps with no network, under the same id and caption.
+    On-the-fly's steps are its retiming to the tempo its artefact measured (capped as the LSO ``tempo`` row caps
+    it) and its foot lock; a method without such steps adds its sources untouched."""
+    out = work / "corpora" / f"B_{method}_control"
+    if (out / "Mean.npy").is_file():
+        return out
+    run_dir, base = work / "runs" / method, work / "split" / BASE_DIR
+    params = load_run_config(work / "runs" / f"{method}.yaml").method.params
+    tempos: dict[str, float] = {}
+    for path in sorted(run_dir.glob("styles/*/**/artifact.json")):
+        style = path.relative_to(run_dir / "styles").parts[0]
+        tempos.setdefault(style, float(json.loads(path.read_text(encoding="utf-8")).get("tempo", 1.0)))
+
+    def steps(clip: MotionClip) -> MotionClip:
+        motion = np.load(base / "new_joint_vecs" / f"{clip.meta['source_id']}.npy")
+        tempo = tempos.get(clip.style or "", 1.0)
+        if tempo != 1.0:
+            motion = retime(motion, tempo, max(len(motion), TEMPO_CAP))
+        if params.get("foot_lock", False):
+            motion = lock_feet(motion)
+        return replace(clip, motion=motion.astype(np.float32), meta={**clip.meta, "method": f"{method} control"})
+
+    log(f"writing B_{method}_control ({method}'s output steps on its sources, tempos {tempos})")
+    timed(work, f"corpus_{method}_control", lambda: merge_clips(base, map(steps, run_clips(run_dir)), out))
     return out
 
 
@@ -481,6 +517,12 @@ def main() -> None:
         default="stats,onthefly",
         help="comma-separated: stats, onthefly, erd, umsd; METHOD-LABEL adds another B of METHOD (own --params)",
     )
+    parser.add_argument(
+        "--controls",
+        default="",
+        help="comma-separated methods whose output steps get a control B (their sources through the same steps, "
+        "no network; needs the method's run)",
+    )
     parser.add_argument("--missing", default=None, help="styles A lacks (default: synthetic 4, bandai2 all 6)")
     parser.add_argument("--fold", default=None, help="the leave-style-out rule: A lacks this LSO fold's styles")
     parser.add_argument("--clips", type=int, default=800, help="synthetic corpora size")
@@ -546,6 +588,12 @@ def main() -> None:
         by_seed[f"B_{method}"] = train_and_score(
             args, work, f"B_{method}", expand(args, work, split, method), judge, split
         )
+    controls = [m for m in args.controls.split(",") if m]
+    for method in controls:
+        by_seed[f"B_{method}_control"] = train_and_score(
+            args, work, f"B_{method}_control", control(work, method), judge, split
+        )
+    methods += [f"{m}_control" for m in controls]
     by_seed["C"] = train_and_score(args, work, "C", upper_bound(work), judge, split)
     scores = {name: runs["mean"] for name, runs in by_seed.items()}
     results = {

@@ -9,9 +9,11 @@ and fits the judges on the train split without any draw's takes; both are writte
 unit is one (corpus, fold, row, split): the held-out ``normal`` takes of the split go into each of the fold's styles
 for each draw and k, and the per-clip judge readings are written to ``bench/lso/`` (committed). Rows: ``content``
 (the untouched clip), ``moments`` (the moment rule on the content clip, no network: the control of that step),
-``foot_lock`` (on-the-fly's foot lock on the content clip, the control of that step), ``tempo`` (on-the-fly's
-retiming to the tempo its artefact measured, the control of that step; needs the onthefly unit's run folders),
-and the methods through ``motionaug run`` with trained parts fitted on the corpus without the fold's styles.
+``shapers`` (``--shapers A,B`` on the content clip, in order, no network: a shaper's control, ``--hook-modules``
+importing a lab one), ``foot_lock`` (on-the-fly's foot lock on the content clip, the control of that step),
+``tempo`` (on-the-fly's retiming to the tempo its artefact measured, the control of that step; needs the onthefly
+unit's run folders), and the methods through ``motionaug run`` with trained parts fitted on the corpus without the
+fold's styles.
 """
 
 from __future__ import annotations
@@ -43,7 +45,7 @@ from motionaug.augment.eval.protocol import (
     take_of,
 )
 from motionaug.augment.io import atomic_save_npy, atomic_write_text
-from motionaug.augment.methods.hooks import ShapeContext, output_shapers
+from motionaug.augment.methods.hooks import ShapeContext, import_hook_modules, output_shapers
 from motionaug.augment.methods.shaping import nearest_root_motion
 from motionaug.augment.metrics import matched_fmd, mean_foot_skating
 from motionaug.augment.motion.features import Normalizer, features_to_joints
@@ -151,18 +153,19 @@ Transfers = dict[tuple[str, int, int], list[tuple[str, np.ndarray]]]
 """(style, draw, k) -> (source id, output features) of every transfer."""
 
 
-def moment_row(
+def shaper_row(
     args: argparse.Namespace,
     fold_corpus: Path,
     draws: ExampleDraws,
     styles: list[str],
     originals: dict[str, MotionClip],
+    shapers: list[str],
 ) -> Transfers:
-    """The moment rule on each content clip: posture and amplitude of its k examples against each example's
-    nearest plain train clip by root motion (the same reference rule as the shipped shaper), no network."""
+    """Output shapers on each content clip, in order, no network (their control): each reads the k examples against
+    each example's nearest plain train clip by root motion (the same reference rule as a run's shapers)."""
     norm = Normalizer(np.load(fold_corpus / "Mean.npy"), np.load(fold_corpus / "Std.npy"))
     plain = {c.id: c.motion for c in Corpus(fold_corpus, split="train") if c.style == NEUTRAL[args.kind]}
-    shaper = output_shapers.create("moments")
+    steps = [output_shapers.create(name) for name in shapers]
     out: Transfers = {}
     for style in styles:
         for draw in range(len(draws.draws[style])):
@@ -174,7 +177,10 @@ def moment_row(
                 rows = []
                 for clip in blind(scored_clips(args.corpus, args.kind, args.split)):
                     c = norm.normalize(clip.motion)
-                    shaped = shaper(c, ShapeContext(content=c, example=example, reference=reference, fps=clip.fps))
+                    context = ShapeContext(content=c, example=example, reference=reference, fps=clip.fps)
+                    shaped = c
+                    for step in steps:
+                        shaped = step(shaped, context)
                     rows.append((clip.id, norm.denormalize(shaped)))
                 out[(style, draw, k)] = rows
     return out
@@ -277,8 +283,10 @@ def run(args: argparse.Namespace) -> None:
             for c in blind(scored_clips(args.corpus, args.kind, args.split))
         ]
         transfers = {(s, d, k): sources for s in styles for d in range(DRAWS) for k in args.k}
-    elif args.row == "moments":
-        transfers = moment_row(args, fold_corpus, draws, styles, train_clips(args.corpus))
+    elif args.row in ("moments", "shapers"):
+        shapers = ["moments"] if args.row == "moments" else [n for n in args.shapers.split(",") if n]
+        import_hook_modules(args.hook_modules)
+        transfers = shaper_row(args, fold_corpus, draws, styles, train_clips(args.corpus), shapers)
     elif args.row == "tempo":
         transfers = tempo_row(args, styles)
     else:
@@ -484,7 +492,7 @@ def cross_run(args: argparse.Namespace) -> None:
         sources = blind(scored_clips(args.corpus, args.kind, args.split))
         transfers = {(s, d, 1): [(c.id, c.motion) for c in sources] for s in styles for d in range(CROSS_DRAWS)}
     elif args.row == "moments":
-        transfers = moment_row(args, fold_corpus, draws, styles, novel)
+        transfers = shaper_row(args, fold_corpus, draws, styles, novel, ["moments"])
     else:
         transfers = method_row(args, fold_corpus, draws, styles, novel, tag="cross-")
     seconds = time.perf_counter() - start
@@ -576,6 +584,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--split", choices=["val", "test"], default="val")
     parser.add_argument("--k", type=int, nargs="+", default=[1, 3])
     parser.add_argument("--set", action="append", default=[], help="run: KEY=VALUE on the shipped config (a variant)")
+    parser.add_argument("--shapers", default="", help="run --row shapers: output shapers on the content clip, in order")
+    parser.add_argument("--hook-modules", nargs="*", default=[], help="run: modules registering hooks (lab.NAME)")
     parser.add_argument("--variant", default="", help="run: the variant's name, in the row and unit file names")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=2)
