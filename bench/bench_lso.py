@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 import torch
+import yaml
 
 from motionaug.augment.corpus import Corpus
 from motionaug.augment.corpus.clip import MotionClip
@@ -45,10 +46,10 @@ from motionaug.augment.eval.protocol import (
     take_of,
 )
 from motionaug.augment.io import atomic_save_npy, atomic_write_text
-from motionaug.augment.methods.hooks import ShapeContext, import_hook_modules, output_shapers
+from motionaug.augment.methods.hooks import HookSpec, ShapeContext, import_hook_modules, output_shapers
 from motionaug.augment.methods.shaping import nearest_root_motion
 from motionaug.augment.metrics import matched_fmd, mean_foot_skating
-from motionaug.augment.motion.features import Normalizer, features_to_joints
+from motionaug.augment.motion.features import features_to_joints
 from motionaug.augment.motion.foot_lock import lock_feet
 from motionaug.augment.motion.tempo import retime
 from motionaug.augment.outputs.shards import iter_shard_rows, row_motion
@@ -142,6 +143,7 @@ def setup(args: argparse.Namespace) -> None:
             "commit": commit(),
             "train_clips": len(train),
             "epochs": args.judge_epochs,
+            "threads": args.threads,  # the fit's float sums, hence its weights, depend on the thread count
             "test_accuracy": judges.info.accuracy,
         }
         atomic_write_text(RESULTS / f"{args.kind}-judges.json", json.dumps(summary, indent=1) + "\n")
@@ -153,35 +155,43 @@ Transfers = dict[tuple[str, int, int], list[tuple[str, np.ndarray]]]
 """(style, draw, k) -> (source id, output features) of every transfer."""
 
 
+def shaper_spec(text: str) -> HookSpec:
+    """``NAME`` or ``NAME:KEY=VALUE:...`` (values parsed as YAML): a shaper as ``--shapers`` names it."""
+    name, *options = text.split(":")
+    return {"name": name, **{k: yaml.safe_load(v) for k, v in (o.split("=", 1) for o in options)}} if options else name
+
+
+def shaper_specs(text: str) -> list[HookSpec]:
+    return [shaper_spec(t) for t in text.split(",") if t]
+
+
 def shaper_row(
     args: argparse.Namespace,
     fold_corpus: Path,
     draws: ExampleDraws,
     styles: list[str],
     originals: dict[str, MotionClip],
-    shapers: list[str],
+    shapers: list[HookSpec],
 ) -> Transfers:
     """Output shapers on each content clip, in order, no network (their control): each reads the k examples against
-    each example's nearest plain train clip by root motion (the same reference rule as a run's shapers)."""
-    norm = Normalizer(np.load(fold_corpus / "Mean.npy"), np.load(fold_corpus / "Std.npy"))
+    each example's nearest plain train clip by root motion (the same reference rule as a run's shapers), all in the
+    corpus's features as a run's shapers read them."""
     plain = {c.id: c.motion for c in Corpus(fold_corpus, split="train") if c.style == NEUTRAL[args.kind]}
-    steps = [output_shapers.create(name) for name in shapers]
+    steps = output_shapers.create_all(shapers)
     out: Transfers = {}
     for style in styles:
         for draw in range(len(draws.draws[style])):
             for k in args.k:
                 examples = [originals[i].motion for i in examples_of(draws, style, draw, k)]
-                example = np.concatenate([norm.normalize(e) for e in examples])
-                references = [nearest_root_motion(e, plain)[1] for e in examples]
-                reference = np.concatenate([norm.normalize(r) for r in references])
+                example = np.concatenate(examples)
+                reference = np.concatenate([nearest_root_motion(e, plain)[1] for e in examples])
                 rows = []
                 for clip in blind(scored_clips(args.corpus, args.kind, args.split)):
-                    c = norm.normalize(clip.motion)
-                    context = ShapeContext(content=c, example=example, reference=reference, fps=clip.fps)
-                    shaped = c
+                    context = ShapeContext(content=clip.motion, example=example, reference=reference, fps=clip.fps)
+                    shaped = clip.motion
                     for step in steps:
                         shaped = step(shaped, context)
-                    rows.append((clip.id, norm.denormalize(shaped)))
+                    rows.append((clip.id, shaped))
                 out[(style, draw, k)] = rows
     return out
 
@@ -284,7 +294,7 @@ def run(args: argparse.Namespace) -> None:
         ]
         transfers = {(s, d, k): sources for s in styles for d in range(DRAWS) for k in args.k}
     elif args.row in ("moments", "shapers"):
-        shapers = ["moments"] if args.row == "moments" else [n for n in args.shapers.split(",") if n]
+        shapers = ["moments"] if args.row == "moments" else shaper_specs(args.shapers)
         import_hook_modules(args.hook_modules)
         transfers = shaper_row(args, fold_corpus, draws, styles, train_clips(args.corpus), shapers)
     elif args.row == "tempo":
@@ -299,6 +309,8 @@ def run(args: argparse.Namespace) -> None:
         "row": row_name(args),
         "split": args.split,
         "overrides": args.set,
+        "shapers": args.shapers if args.row == "shapers" else None,
+        "hook_modules": args.hook_modules,
         "k": args.k,
         "seed": args.seed,
         "seconds": round(seconds, 1),
@@ -584,7 +596,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--split", choices=["val", "test"], default="val")
     parser.add_argument("--k", type=int, nargs="+", default=[1, 3])
     parser.add_argument("--set", action="append", default=[], help="run: KEY=VALUE on the shipped config (a variant)")
-    parser.add_argument("--shapers", default="", help="run --row shapers: output shapers on the content clip, in order")
+    parser.add_argument(
+        "--shapers",
+        default="",
+        help="run --row shapers: output shapers on the content clip, in order (NAME or NAME:KEY=VALUE:...)",
+    )
     parser.add_argument("--hook-modules", nargs="*", default=[], help="run: modules registering hooks (lab.NAME)")
     parser.add_argument("--variant", default="", help="run: the variant's name, in the row and unit file names")
     parser.add_argument("--seed", type=int, default=0)

@@ -1,10 +1,10 @@
 """Spectral style transfer as an output shaper: the example's timing texture, not only its posture and amplitude.
 
-- output shaper ``spectrum`` (``bands``, ``most``): each channel's power per frequency band is scaled by the style
-  example's power in that band over its reference's (the plain pool clip standing in for the example's content),
-  then the channel is brought back to its own total power. The content keeps its phases (when things happen) and
-  its amplitude; what changes is how its motion is spread over slow and fast frequencies: a shuffle's damped
-  accents, a strut's sharp ones.
+- output shaper ``spectrum`` (``bands``, ``most``, ``keep_power``): each channel's power per frequency band is
+  scaled by the style example's power in that band over its reference's (the plain pool clip standing in for the
+  example's content), then the channel is brought back to its own total power. The content keeps its phases (when
+  things happen) and its amplitude; what changes is how its motion is spread over slow and fast frequencies: a
+  shuffle's damped accents, a strut's sharp ones.
 
 Why: the moment rule (``motionaug.augment.methods.shapers``) carries a style's mean posture and variance, which a
 clip-standardised judge cannot see; styles also differ in the shape of each joint's motion over time. Fourier
@@ -40,11 +40,11 @@ def shaped_channels() -> np.ndarray:
 
 
 def spectrum_transfer(
-    output: np.ndarray, example: np.ndarray, reference: np.ndarray, bands: int, most: float
+    output: np.ndarray, example: np.ndarray, reference: np.ndarray, bands: int, most: float, keep_power: bool = True
 ) -> np.ndarray:
     """``output`` (T, F) with each shaped channel's DCT coefficients (mean excluded) scaled per band by
-    sqrt(example power / reference power), the gain clipped to [1 / ``most``, ``most``], then the channel's
-    non-mean power restored to the output's own."""
+    sqrt(example power / reference power), the gain clipped to [1 / ``most``, ``most``], then (``keep_power``) the
+    channel's non-mean power restored to the output's own."""
     cols = shaped_channels()
     frames = output.shape[0]
     if frames < 2 * bands:  # too short for a band to hold a coefficient
@@ -59,7 +59,8 @@ def spectrum_transfer(
     scaled = coeffs * gain[band_of_coefficients(frames, bands)]
     before = coeffs[1:].square().sum(0)
     after = scaled[1:].square().sum(0).clamp(min=1e-24)
-    scaled[1:] *= (before / after).sqrt()
+    if keep_power:
+        scaled[1:] *= (before / after).sqrt()
     scaled[0] = coeffs[0]
     out = output.copy()
     out[:, cols] = (dct.T @ scaled).numpy().astype(np.float32)
@@ -72,12 +73,12 @@ class Spectrum(OutputShaper):
 
     needs_reference = True
 
-    def __init__(self, bands: int = 16, most: float = 4.0) -> None:
+    def __init__(self, bands: int = 16, most: float = 4.0, keep_power: bool = True) -> None:
         if bands < 2 or most < 1.0:
             raise ValueError(f"spectrum needs bands >= 2 and most >= 1, got {bands}, {most}")
-        self.bands, self.most = bands, most
+        self.bands, self.most, self.keep_power = bands, most, keep_power
 
     def __call__(self, output: np.ndarray, context: ShapeContext) -> np.ndarray:
         if context.reference is None:
             raise ValueError("the spectrum shaper needs the example's reference")
-        return spectrum_transfer(output, context.example, context.reference, self.bands, self.most)
+        return spectrum_transfer(output, context.example, context.reference, self.bands, self.most, self.keep_power)

@@ -1,0 +1,61 @@
+"""The lab's coordination shapers (``lab/style_coordination.py``) on real-shaped features: what each keeps and moves."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lab.style_coordination import coordination_transfer, position_channels, with_bone_lengths
+from motionaug.augment.methods.hooks import ShapeContext, output_shapers
+from motionaug.augment.motion.features import features_to_joints
+from motionaug.augment.synth.animator import sample_spec
+from motionaug.augment.synth.corpus import spec_to_clip
+from motionaug.schemas.skeleton import T2M
+
+
+def clip(style: str, content: str = "walk", seed: int = 0) -> np.ndarray:
+    """A rendered synthetic clip's features (a real skeleton: constant bone lengths)."""
+    return spec_to_clip(sample_spec(np.random.default_rng(seed), content, style, seed=seed), "c").motion
+
+
+def bone_lengths(features: np.ndarray) -> np.ndarray:
+    joints = features_to_joints(features)
+    pairs = [(a, b) for chain in T2M.kinematic_chain for a, b in zip(chain[:-1], chain[1:])]
+    return np.stack([np.linalg.norm(joints[:, b] - joints[:, a], axis=-1) for a, b in pairs], axis=-1)
+
+
+def test_they_register_and_coordination_needs_a_reference() -> None:
+    assert {"coordination", "bone_lengths", "lock_feet"} <= set(output_shapers.names())
+    x = clip("neutral")
+    with pytest.raises(ValueError, match="reference"):
+        output_shapers.create("coordination")(x, ShapeContext(content=x, example=x, reference=None, fps=20.0))
+    with pytest.raises(ValueError, match="shrink"):
+        output_shapers.create({"name": "coordination", "shrink": 2.0})
+
+
+def test_the_same_example_and_reference_change_nothing() -> None:
+    content, example = clip("neutral"), clip("old", seed=1)
+    np.testing.assert_allclose(coordination_transfer(content, example, example, 0.0, 1e-3), content, atol=1e-4)
+
+
+def test_a_plain_content_comes_out_with_the_examples_covariance_and_the_rest_is_kept() -> None:
+    reference, example = clip("neutral", seed=2), clip("old", seed=3)
+    out = coordination_transfer(reference, example, reference, 0.0, 1e-6)
+    cols = position_channels()
+    got, want = np.cov(out[:, cols], rowvar=False), np.cov(example[:, cols], rowvar=False)
+    before = np.abs(np.cov(reference[:, cols], rowvar=False) - want).max()
+    assert np.abs(got - want).max() < 0.1 * before  # near-flat directions are floored, so not exact
+    others = np.setdiff1d(np.arange(out.shape[1]), cols)
+    np.testing.assert_array_equal(out[:, others], reference[:, others])
+    np.testing.assert_allclose(out[:, cols].mean(0), reference[:, cols].mean(0), atol=1e-5)
+
+
+def test_bone_lengths_are_the_contents_again() -> None:
+    content, example, reference = clip("neutral"), clip("old", seed=1), clip("neutral", seed=4)
+    stretched = coordination_transfer(content, example, reference, 0.0, 1e-3)
+    assert np.abs(bone_lengths(stretched) - bone_lengths(content).mean(0)).max() > 0.01  # the map stretches bones
+    fixed = with_bone_lengths(stretched, content)
+    np.testing.assert_allclose(
+        bone_lengths(fixed), bone_lengths(content).mean(0)[None].repeat(len(fixed), 0), atol=1e-4
+    )
+    np.testing.assert_allclose(with_bone_lengths(content, content), content, atol=1e-5)  # a skeleton stays as it is
