@@ -2,7 +2,7 @@
 same content in the style (for the eye only; it reaches no shaper).
 
     .venv/bin/python lab/shaper_preview.py --corpus BANDAI2 --style elderly --draw 0 --split val \
-        --chains moments "coordination,moments,lock_feet" --hook-modules lab.style_coordination --out sheet.png
+        --chains moments "coordination,moments,lock_feet" --hook-modules lab.style_spectrum --out sheet.png
 
 The example is the LSO draw's k = 1 take (``bench/lso/<kind>-draws.json``), its reference the nearest plain train
 clip by root motion (plain clips are in every fold's corpus), as ``bench/bench_lso.py run --row shapers`` does.

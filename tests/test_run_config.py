@@ -81,6 +81,7 @@ def test_top_level_must_be_a_mapping(tmp_path: Path) -> None:
 def test_every_shipped_config_loads_and_its_method_params_validate() -> None:
     """Also what preflight checks of each example without its corpus: the description names the style."""
     from motionaug.augment.corpus.style_examples import describes_style
+    from motionaug.augment.methods.hooks import output_shapers
     from motionaug.augment.methods.registry import validate_method_params
 
     configs = sorted((Path(__file__).parents[1] / "configs").glob("*.yaml"))
@@ -92,11 +93,14 @@ def test_every_shipped_config_loads_and_its_method_params_validate() -> None:
     for path in configs:
         config = load_run_config(path)
         params = validate_method_params(config.method.name, config.method.params)
+        output_shapers.create_all(config.method.shapers)  # every shaper a config names is the product's own
         for style in config.styles:
             for example in style.examples:
                 assert describes_style(example.description, style.words), (path.name, style.name)
         if path.name == "onthefly-lora-synthetic.yaml":  # the recipe bench/RESULTS.md measured
             assert params["lora_rank"] == 4 and "poseFinal" in params["lora_targets"]
+        if config.method.name == "erd":  # the chain RESULTS section 0 measured with Style-ERD
+            assert config.method.shapers == ["coordination", "moments", "bone_lengths", "lock_feet"]
 
 
 def test_a_yaml_syntax_error_names_file_line_and_column(tmp_path: Path) -> None:

@@ -220,18 +220,20 @@ def demo(
     ),
     clips: Annotated[int, typer.Option(min=40, help="Synthetic clips to render.")] = 1000,
     base_models: Annotated[
-        Path | None, typer.Option(help="Base-models folder to reuse or pre-train into (default OUT/base_models).")
+        Path | None,
+        typer.Option(help="Base-models folder to reuse or train into (default OUT/base_models[-METHOD])."),
     ] = None,
     method: Annotated[
-        str, typer.Option(help="onthefly (diffusion, the default) or stats (a fast baseline).")
-    ] = "onthefly",
+        str,
+        typer.Option(help="erd (Style-ERD + output shapers, the default), onthefly (diffusion) or stats (a baseline)."),
+    ] = "erd",
     size: Annotated[
         str, typer.Option(help="Base-model size: small, or tiny for a smoke run in about a minute.")
     ] = "small",
 ) -> None:
-    """The embedded default end to end: synthetic corpus, `small` base models (pre-trained once, then reused),
-    three styles learnt from one example each, every neutral clip stylized into Parquet shards, and the expanded
-    corpus exported in the HumanML3D layout."""
+    """The embedded default end to end: synthetic corpus, the method's `small` base models (trained once on the
+    corpus without the demo styles, then reused), three styles learnt from one example each, every neutral clip
+    stylized into Parquet shards, and the expanded corpus exported in the HumanML3D layout."""
     from motionaug.workflows.demo import run_demo
 
     note_output(out)

@@ -1,12 +1,13 @@
-"""The lab's coordination shapers (``lab/style_coordination.py``) on real-shaped features: what each keeps and moves."""
+"""The coordination, bone-length and foot-lock shapers (``augment/methods/shapers.py``) on real-shaped features:
+what each keeps and moves."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from lab.style_coordination import coordination_transfer, position_channels, with_bone_lengths
 from motionaug.augment.methods.hooks import ShapeContext, output_shapers
+from motionaug.augment.methods.shapers import coordination_transfer, position_channels, with_bone_lengths
 from motionaug.augment.motion.features import features_to_joints
 from motionaug.augment.synth.animator import sample_spec
 from motionaug.augment.synth.corpus import spec_to_clip
