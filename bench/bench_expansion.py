@@ -70,6 +70,8 @@ from motionaug.augment.eval.expansion import (
     true_stylized,
 )
 from motionaug.augment.eval.protocol import fold_of
+from motionaug.augment.methods.hooks import ShapeContext, output_shapers
+from motionaug.augment.methods.shaping import SHAPING_FILE, example_index, read_shaping
 from motionaug.augment.motion.features import features_to_joints
 from motionaug.augment.motion.foot_lock import lock_feet
 from motionaug.augment.motion.tempo import retime
@@ -269,27 +271,41 @@ def control(work: Path, method: str) -> Path:
     """The control of ``method``'s output steps (issue 41: every post-process gets its row): A plus, for each clip
     the method's run added, its source clip through the same steps with no network, under the same id and caption.
     On-the-fly's steps are its retiming to the tempo its artefact measured (capped as the LSO ``tempo`` row caps
-    it) and its foot lock; a method without such steps adds its sources untouched."""
+    it) and its foot lock; a run's output shapers (``method.shapers``) shape the source with the example and
+    reference its prepare stage stored, as the transfer shapes an output; a method without such steps adds its
+    sources untouched."""
     out = work / "corpora" / f"B_{method}_control"
     if (out / "Mean.npy").is_file():
         return out
     run_dir, base = work / "runs" / method, work / "split" / BASE_DIR
-    params = load_run_config(work / "runs" / f"{method}.yaml").method.params
+    config = load_run_config(work / "runs" / f"{method}.yaml")
+    params, shapers = config.method.params, output_shapers.create_all(config.method.shapers)
     tempos: dict[str, float] = {}
     for path in sorted(run_dir.glob("styles/*/**/artifact.json")):
         style = path.relative_to(run_dir / "styles").parts[0]
         tempos.setdefault(style, float(json.loads(path.read_text(encoding="utf-8")).get("tempo", 1.0)))
+    shaping: dict[str, tuple[list[np.ndarray], list[np.ndarray]]] = {}
+    for path in sorted(run_dir.glob(f"styles/*/**/{SHAPING_FILE}")) if shapers else []:
+        shaping.setdefault(path.relative_to(run_dir / "styles").parts[0], read_shaping(path.parent))
 
     def steps(clip: MotionClip) -> MotionClip:
-        motion = np.load(base / "new_joint_vecs" / f"{clip.meta['source_id']}.npy")
+        source_id = clip.meta["source_id"]
+        motion = np.load(base / "new_joint_vecs" / f"{source_id}.npy")
         tempo = tempos.get(clip.style or "", 1.0)
         if tempo != 1.0:
             motion = retime(motion, tempo, max(len(motion), TEMPO_CAP))
         if params.get("foot_lock", False):
             motion = lock_feet(motion)
+        if shapers:
+            examples, references = shaping[clip.style or ""]
+            picked = example_index(source_id, len(examples))
+            reference = references[picked] if references else None
+            context = ShapeContext(motion.astype(np.float32), examples[picked], reference, clip.fps)
+            for shaper in shapers:
+                motion = shaper(motion, context)
         return replace(clip, motion=motion.astype(np.float32), meta={**clip.meta, "method": f"{method} control"})
 
-    log(f"writing B_{method}_control ({method}'s output steps on its sources, tempos {tempos})")
+    log(f"writing B_{method}_control ({method}'s output steps on its sources: tempos {tempos}, shaped {list(shaping)})")
     timed(work, f"corpus_{method}_control", lambda: merge_clips(base, map(steps, run_clips(run_dir)), out))
     return out
 

@@ -45,7 +45,11 @@ DEMO_PROFILES: dict[str, dict[str, dict[str, Any]]] = {
     "erd": {
         "small": {"params": {"neutral_style": "neutral", "train": {"steps": 1500}}, "shapers": ERD_SHAPERS},
         "tiny": {
-            "params": {"neutral_style": "neutral", "train": {"steps": 3, "batch_size": 4, "window_s": 0.8}},
+            "params": {
+                "neutral_style": "neutral",
+                "train": {"steps": 3, "batch_size": 4, "window_s": 0.8},
+                "branch": {"steps": 3, "batch_size": 4},
+            },
             "shapers": ERD_SHAPERS,
         },
     },
