@@ -47,7 +47,7 @@ from motionaug.augment.eval.protocol import (
 )
 from motionaug.augment.io import atomic_save_npy, atomic_write_text
 from motionaug.augment.methods.hooks import HookSpec, ShapeContext, import_hook_modules, output_shapers
-from motionaug.augment.methods.shaping import nearest_root_motion
+from motionaug.augment.methods.shaping import nearest_root_motion, write_shaping
 from motionaug.augment.metrics import matched_fmd, mean_foot_skating
 from motionaug.augment.motion.features import features_to_joints
 from motionaug.augment.motion.foot_lock import lock_feet
@@ -320,7 +320,8 @@ def run(args: argparse.Namespace) -> None:
 
 def step_time(args: argparse.Namespace) -> None:
     """The per-style step alone, timed: each fold style's ``prepare`` from draw 0's examples at every k, with the
-    unit's trained parts and 64 plain train clips as the pool (the plan's pool size), ``--threads`` threads."""
+    unit's trained parts and 64 plain train clips as the pool (the plan's pool size), then the output shapers'
+    reference pick when the config has shapers, ``--threads`` threads."""
     from motionaug.augment.methods.registry import create_method
 
     shipped = load_run_config(REPO / "configs" / CONFIGS[args.kind].format(method=args.row))
@@ -336,6 +337,8 @@ def step_time(args: argparse.Namespace) -> None:
             out = args.work / args.fold / "step-time" / f"{args.row}-{style}-k{k}"
             start = time.perf_counter()
             method.prepare(style_spec(shipped, style), examples, trained, pool, out, seed=0)
+            if shipped.method.shapers:  # the prepare stage's reference pick for the output shapers
+                write_shaping(out, style, examples, pool, shipped.method.shapers)
             print(f"{args.row} {style} k={k}: {time.perf_counter() - start:.1f} s ({args.threads} threads)")
 
 
