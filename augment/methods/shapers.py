@@ -91,10 +91,16 @@ def _power(cov: np.ndarray, exponent: float, floor: float) -> np.ndarray:
 
 
 def coordination_transfer(
-    output: np.ndarray, example: np.ndarray, reference: np.ndarray, shrink: float, floor: float
+    output: np.ndarray,
+    example: np.ndarray,
+    reference: np.ndarray,
+    shrink: float,
+    floor: float,
+    cols: np.ndarray | None = None,
 ) -> np.ndarray:
-    """``output`` (T, F) with its position channels' deviations from their means mapped by S_e^(1/2) S_r^(-1/2)."""
-    cols = position_channels()
+    """``output`` (T, F) with its position channels' deviations from their means mapped by S_e^(1/2) S_r^(-1/2);
+    ``cols``: the channels mapped (default every position channel)."""
+    cols = position_channels() if cols is None else cols
     ex, ref = (np.asarray(m[:, cols], dtype=np.float64) for m in (example, reference))
     colour = _power(_covariance(ex, shrink), 0.5, floor) @ _power(_covariance(ref, shrink), -0.5, floor)
     x = np.asarray(output[:, cols], dtype=np.float64)
