@@ -70,8 +70,8 @@ from motionaug.augment.eval.expansion import (
     true_stylized,
 )
 from motionaug.augment.eval.protocol import fold_of
-from motionaug.augment.methods.hooks import ShapeContext, output_shapers
-from motionaug.augment.methods.shaping import SHAPING_FILE, example_index, read_shaping
+from motionaug.augment.methods.hooks import output_shapers
+from motionaug.augment.methods.shaping import SHAPING_FILE, read_shaping, shape
 from motionaug.augment.motion.features import features_to_joints
 from motionaug.augment.motion.foot_lock import lock_feet
 from motionaug.augment.motion.tempo import retime
@@ -297,12 +297,8 @@ def control(work: Path, method: str) -> Path:
         if params.get("foot_lock", False):
             motion = lock_feet(motion)
         if shapers:
-            examples, references = shaping[clip.style or ""]
-            picked = example_index(source_id, len(examples))
-            reference = references[picked] if references else None
-            context = ShapeContext(motion.astype(np.float32), examples[picked], reference, clip.fps)
-            for shaper in shapers:
-                motion = shaper(motion, context)
+            source = replace(clip, id=source_id, motion=motion.astype(np.float32))
+            motion = shape(motion, source, shapers, *shaping[clip.style or ""])
         return replace(clip, motion=motion.astype(np.float32), meta={**clip.meta, "method": f"{method} control"})
 
     log(f"writing B_{method}_control ({method}'s output steps on its sources: tempos {tempos}, shaped {list(shaping)})")

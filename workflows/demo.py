@@ -5,13 +5,13 @@ method, stylizes every neutral clip, and exports the expanded corpus in the Huma
 Style-ERD with its output shapers (the winner of the leave-style-out table, ``bench/RESULTS.md`` section 0). The
 network (Style-ERD's, or on-the-fly's prior) trains once on a copy of the corpus without the demo styles (the
 product's style filter), so that each style is learnt from its example as a user's unseen style is, never from the
-corpus's labelled clips of it. Each
-step leaves a completion marker, so running the demo again with the same folder finishes at once.
+corpus's labelled clips of it. Each step leaves a completion marker, so running the demo again finishes at once.
 """
 
 from __future__ import annotations
 
 import shutil
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -70,15 +70,21 @@ class DemoResult:
     viewer: ViewerSummary
 
 
-def ensure_corpus(root: Path, clips: int, seed: int = DEMO_SEED) -> Path:
-    """The synthetic corpus at ``root``; a half-written one (no marker) is rendered again from scratch."""
+def once(root: Path, build: Callable[[Path], Any]) -> Path:
+    """``root`` as ``build`` writes it, once: a folder without its completion marker (half-written) is rebuilt
+    from scratch."""
     if (root / DONE).is_file():
         return root
     if root.exists():
         shutil.rmtree(root)
-    generate_corpus(root, clips, seed=seed)
+    build(root)
     atomic_write_text(root / DONE, "")
     return root
+
+
+def ensure_corpus(root: Path, clips: int, seed: int = DEMO_SEED) -> Path:
+    """The synthetic corpus at ``root``."""
+    return once(root, lambda out: generate_corpus(out, clips, seed=seed))
 
 
 def demo_styles(corpus: Path) -> list[StyleSpec]:
@@ -108,25 +114,13 @@ def demo_styles(corpus: Path) -> list[StyleSpec]:
 
 def ensure_training_corpus(corpus: Path, root: Path) -> Path:
     """The corpus without the demo styles and their counterparts at ``root``: what the demo's network trains on."""
-    if (root / DONE).is_file():
-        return root
-    if root.exists():
-        shutil.rmtree(root)
-    write_without_styles(corpus, root, DEMO_STYLES)
-    atomic_write_text(root / DONE, "")
-    return root
+    return once(root, lambda out: write_without_styles(corpus, out, DEMO_STYLES))
 
 
 def ensure_evaluators(corpus: Path, root: Path, size: str) -> Path:
     """The demo's judges at ``root``: content and style classifiers fit on the whole corpus's train split, demo
     styles included, kept apart from the method's models (``motionaug evaluate`` scores the run with them)."""
-    if (root / DONE).is_file():
-        return root
-    if root.exists():
-        shutil.rmtree(root)
-    fit_evaluators(corpus, root, PretrainConfig.for_size(size, seed=DEMO_SEED))
-    atomic_write_text(root / DONE, "")
-    return root
+    return once(root, lambda out: fit_evaluators(corpus, out, PretrainConfig.for_size(size, seed=DEMO_SEED)))
 
 
 def method_folder(out: Path, name: str, method: str) -> Path:

@@ -106,6 +106,23 @@ def example_index(clip_id: str, n_examples: int) -> int:
     return zlib.crc32(clip_id.encode("utf-8")) % n_examples
 
 
+def shape(
+    output: np.ndarray,
+    content: MotionClip,
+    shapers: Sequence[OutputShaper],
+    examples: Sequence[np.ndarray],
+    references: Sequence[np.ndarray] = (),
+) -> np.ndarray:
+    """``output`` through the shapers in order, against the content clip and the example (with its reference) that
+    the content's id picks."""
+    picked = example_index(content.id, len(examples))
+    reference = references[picked] if references else None
+    context = ShapeContext(content.motion.astype(np.float32), examples[picked], reference, content.fps)
+    for shaper in shapers:
+        output = shaper(output, context)
+    return output
+
+
 class ShapedModel:
     """A style model whose every output goes through the shapers; a non-finite shaped output is a ``Reject``."""
 
@@ -130,12 +147,7 @@ class ShapedModel:
                 shaped.append(out)
                 continue
             clip = by_id[out.source_id]
-            picked = example_index(clip.id, len(self.examples))
-            reference = self.references[picked] if self.references else None
-            context = ShapeContext(clip.motion.astype(np.float32), self.examples[picked], reference, clip.fps)
-            motion = out.motion
-            for shaper in self.shapers:
-                motion = shaper(motion, context)
+            motion = shape(out.motion, clip, self.shapers, self.examples, self.references)
             if not np.isfinite(motion).all():
                 shaped.append(Reject(id=clip.id, source=f"clip {clip.id}", reason="non-finite shaped output"))
                 continue
