@@ -29,7 +29,6 @@ from typing import Any
 
 import numpy as np
 import torch
-import yaml
 
 from motionaug.augment.corpus import Corpus
 from motionaug.augment.corpus.clip import MotionClip
@@ -46,7 +45,13 @@ from motionaug.augment.eval.protocol import (
     take_of,
 )
 from motionaug.augment.io import atomic_save_npy, atomic_write_text
-from motionaug.augment.methods.hooks import HookSpec, ShapeContext, import_hook_modules, output_shapers
+from motionaug.augment.methods.hooks import (
+    HookSpec,
+    ShapeContext,
+    import_hook_modules,
+    output_shapers,
+    parse_hook_specs,
+)
 from motionaug.augment.methods.shaping import nearest_root_motion, write_shaping
 from motionaug.augment.metrics import matched_fmd, mean_foot_skating
 from motionaug.augment.motion.features import features_to_joints
@@ -153,16 +158,6 @@ def setup(args: argparse.Namespace) -> None:
 
 Transfers = dict[tuple[str, int, int], list[tuple[str, np.ndarray]]]
 """(style, draw, k) -> (source id, output features) of every transfer."""
-
-
-def shaper_spec(text: str) -> HookSpec:
-    """``NAME`` or ``NAME:KEY=VALUE:...`` (values parsed as YAML): a shaper as ``--shapers`` names it."""
-    name, *options = text.split(":")
-    return {"name": name, **{k: yaml.safe_load(v) for k, v in (o.split("=", 1) for o in options)}} if options else name
-
-
-def shaper_specs(text: str) -> list[HookSpec]:
-    return [shaper_spec(t) for t in text.split(",") if t]
 
 
 def shaper_row(
@@ -294,7 +289,7 @@ def run(args: argparse.Namespace) -> None:
         ]
         transfers = {(s, d, k): sources for s in styles for d in range(DRAWS) for k in args.k}
     elif args.row in ("moments", "shapers"):
-        shapers = ["moments"] if args.row == "moments" else shaper_specs(args.shapers)
+        shapers = ["moments"] if args.row == "moments" else parse_hook_specs(args.shapers)
         import_hook_modules(args.hook_modules)
         transfers = shaper_row(args, fold_corpus, draws, styles, train_clips(args.corpus), shapers)
     elif args.row == "tempo":

@@ -13,14 +13,13 @@ plain clip of the split shaped into each ``--style``, the mean over the styles (
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
 
 from motionaug.augment.corpus import Corpus
 from motionaug.augment.eval.protocol import ExampleDraws
-from motionaug.augment.methods.hooks import ShapeContext, import_hook_modules, output_shapers
+from motionaug.augment.methods.hooks import ShapeContext, import_hook_modules, output_shapers, parse_hook_specs
 from motionaug.augment.methods.shaping import nearest_root_motion
 from motionaug.augment.motion.features import features_to_joints
 from motionaug.augment.render.previews import Panel, SheetRow, render_contact_sheet
@@ -56,15 +55,12 @@ def main() -> None:
     parser.add_argument("--out", type=Path)
     args = parser.parse_args()
     import_hook_modules(args.hook_modules)
-    sys.path.insert(0, str(REPO / "bench"))  # the LSO bench's shaper specs (NAME:KEY=VALUE)
-    from bench_lso import shaper_specs  # noqa: E402
-
     path = REPO / "bench" / "lso" / f"{args.kind}-draws.json"
     draws = ExampleDraws.model_validate_json(path.read_text(encoding="utf-8"))
     train = {c.id: c for c in Corpus(args.corpus, split="train")}
     plain = {i: c.motion for i, c in train.items() if c.style == NEUTRAL}  # in every fold's corpus
     scored = list(Corpus(args.corpus, split=args.split))
-    chains = {chain: shaper_specs(chain) for chain in args.chains}
+    chains = {chain: parse_hook_specs(chain) for chain in args.chains}
 
     def context_for(style: str, source: np.ndarray) -> ShapeContext:
         example = train[draws.draws[style][args.draw][0]].motion

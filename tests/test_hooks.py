@@ -126,3 +126,13 @@ def test_a_loss_term_defined_in_a_test_module_trains_in_the_ray_workers(tmp_path
             ray.shutdown()
     record = json.loads((Path(summary.manifest.base_models) / "erd.json").read_text(encoding="utf-8"))
     assert all(row["test-hooks-joints"] > 0 for row in record["history"])
+
+
+def test_hooks_named_on_a_command_line_parse_to_config_specs() -> None:
+    from motionaug.augment.methods.hooks import parse_hook_specs
+
+    assert parse_hook_specs("") == []
+    assert parse_hook_specs("coordination:shrink=0.0:floor=0.01,moments") == [
+        {"name": "coordination", "shrink": 0.0, "floor": 0.01},
+        "moments",
+    ]

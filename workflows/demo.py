@@ -19,6 +19,7 @@ from typing import Any
 from motionaug.augment.corpus.humanml3d import read_labels
 from motionaug.augment.corpus.style_sets import write_without_styles
 from motionaug.augment.io import atomic_write_text
+from motionaug.augment.methods.shapers import STYLE_ERD_CHAIN
 from motionaug.augment.outputs.export import ExportSummary, export_run
 from motionaug.augment.render.viewer import ViewerSummary, write_run_viewer
 from motionaug.augment.synth import STYLE_WORDS, generate_corpus
@@ -40,7 +41,7 @@ DEFAULT_METHOD = "erd"
 # demo past 9 minutes) and keeps their output shapers; on-the-fly's prior and motion encoder stop earlier than
 # `motionaug pretrain` would (``train``, overrides of the size's preset) and each fine-tune has a step budget.
 # `tiny` is a smoke run of the same path (seconds of training, untrained-looking output).
-ERD_SHAPERS = ["coordination", "moments", "bone_lengths", "lock_feet"]  # configs/erd-synthetic.yaml's chain
+ERD_SHAPERS = list(STYLE_ERD_CHAIN)  # as configs/erd-synthetic.yaml chains them
 DEMO_PROFILES: dict[str, dict[str, dict[str, Any]]] = {
     "erd": {
         "small": {"params": {"neutral_style": "neutral", "train": {"steps": 1500}}, "shapers": ERD_SHAPERS},

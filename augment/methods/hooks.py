@@ -21,6 +21,7 @@ from typing import Annotated, Any, ClassVar, Generic, TypeVar
 
 import numpy as np
 import torch
+import yaml
 from pydantic import AfterValidator
 
 from motionaug.schemas.errors import MotionDataError
@@ -160,6 +161,18 @@ def split_spec(spec: HookSpec) -> tuple[str, dict[str, Any]]:
         return spec, {}
     options = dict(spec)
     return str(options.pop("name", "")), options
+
+
+def parse_hook_specs(text: str) -> list[HookSpec]:
+    """Comma-separated ``NAME`` or ``NAME:KEY=VALUE:...`` (values read as YAML): hooks as a command line names them,
+    e.g. ``coordination:shrink=0.0,moments``."""
+    specs: list[HookSpec] = []
+    for item in (t for t in text.split(",") if t):
+        name, *options = item.split(":")
+        specs.append(
+            {"name": name, **{k: yaml.safe_load(v) for k, v in (o.split("=", 1) for o in options)}} if options else name
+        )
+    return specs
 
 
 sampler_callbacks: Registry[type[SamplerCallback]] = Registry("sampler callback")

@@ -19,6 +19,8 @@ from motionaug.augment.motion.features import feature_slices
 from motionaug.augment.motion.foot_lock import lock_feet
 from motionaug.schemas.skeleton import T2M
 
+STYLE_ERD_CHAIN = ("coordination", "moments", "bone_lengths", "lock_feet")
+"""The output shapers both Style-ERD configs and the demo chain after the network (module doc)."""
 AMPLITUDE_MOST = 4.0  # the largest factor an output channel's deviations are scaled by (near-still channels)
 
 
