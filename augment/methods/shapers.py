@@ -14,12 +14,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from motionaug.augment.methods.hooks import OutputShaper, ShapeContext, output_shapers
-from motionaug.augment.motion.features import feature_slices
-from motionaug.augment.motion.foot_lock import lock_feet
+from motionaug.augment.methods.hooks import HookSpec, OutputShaper, ShapeContext, output_shapers
+from motionaug.augment.motion.features import feature_slices, features_to_joints
+from motionaug.augment.motion.foot_lock import lock_feet, plant_feet
 from motionaug.schemas.skeleton import T2M
 
-STYLE_ERD_CHAIN = ("coordination", "moments", "bone_lengths", "lock_feet")
+STYLE_ERD_CHAIN: tuple[HookSpec, ...] = (
+    {"name": "coordination", "lag": 3, "taps": 6},
+    "moments",
+    "bone_lengths",
+    "lock_feet",
+    "plant_feet",
+)
 """The output shapers both Style-ERD configs and the demo chain after the network (module doc)."""
 AMPLITUDE_MOST = 4.0  # the largest factor an output channel's deviations are scaled by (near-still channels)
 
@@ -92,6 +98,15 @@ def _power(cov: np.ndarray, exponent: float, floor: float) -> np.ndarray:
     return (vectors * values**exponent) @ vectors.T
 
 
+def delays(x: np.ndarray, lag: int, taps: int) -> np.ndarray:
+    """(T, F) -> (T, F x (taps + 1)): each frame beside the frames ``lag``, ``2 lag``, ... before it (the first frame
+    repeated before the clip starts)."""
+    if taps == 0:
+        return x
+    padded = np.concatenate([np.repeat(x[:1], lag * taps, axis=0), x])
+    return np.concatenate([padded[lag * taps - lag * i : len(padded) - lag * i] for i in range(taps + 1)], axis=1)
+
+
 def coordination_transfer(
     output: np.ndarray,
     example: np.ndarray,
@@ -99,16 +114,19 @@ def coordination_transfer(
     shrink: float,
     floor: float,
     cols: np.ndarray | None = None,
+    lag: int = 1,
+    taps: int = 0,
 ) -> np.ndarray:
     """``output`` (T, F) with its position channels' deviations from their means mapped by S_e^(1/2) S_r^(-1/2);
-    ``cols``: the channels mapped (default every position channel)."""
+    ``cols``: the channels mapped (default every position channel); with ``taps`` > 0 the covariances are those of
+    each frame stacked with the ``taps`` frames ``lag`` apart before it, and a frame's output is the current block of
+    the stacked map (a filter over those frames)."""
     cols = position_channels() if cols is None else cols
-    ex, ref = (np.asarray(m[:, cols], dtype=np.float64) for m in (example, reference))
+    ex, ref, x = (delays(np.asarray(m[:, cols], dtype=np.float64), lag, taps) for m in (example, reference, output))
     colour = _power(_covariance(ex, shrink), 0.5, floor) @ _power(_covariance(ref, shrink), -0.5, floor)
-    x = np.asarray(output[:, cols], dtype=np.float64)
     mean = x.mean(0)
     out = output.copy()
-    out[:, cols] = (mean + (x - mean) @ colour.T).astype(np.float32)
+    out[:, cols] = (mean + (x - mean) @ colour.T)[:, : len(cols)].astype(np.float32)
     return out
 
 
@@ -121,7 +139,10 @@ class Coordination(OutputShaper):
     the largest. Why: the moment rule is AdaIN's per-channel mean and variance; the whitening and colouring
     transform (Li et al., "Universal style transfer via feature transforms", NeurIPS 2017) is its full-covariance
     form and carries how a style couples the arms, the trunk and the legs, which a clip-standardised judge still
-    sees where posture and amplitude are gone. Taken relative to the reference, the content's own coordination (a
+    sees where posture and amplitude are gone. With ``taps`` > 0, x is each frame's positions stacked with those
+    ``lag``, ..., ``taps`` x ``lag`` frames before (a delay embedding), so the map also carries the lagged
+    cross-covariances: the phase between limbs, alike at zero lag for two limbs moving together or a quarter-cycle
+    apart. Taken relative to the reference, the content's own coordination (a
     wave, a kick) is kept and only the style's change to it added: a content as plain as the reference comes out
     with the example's covariance, and the same example and reference change nothing. Only the joint positions
     change; the joint rotations and velocities stay the content's.
@@ -129,15 +150,20 @@ class Coordination(OutputShaper):
 
     needs_reference = True
 
-    def __init__(self, shrink: float = 0.0, floor: float = 1e-3) -> None:
-        if not (0.0 <= shrink <= 1.0 and 0.0 < floor < 1.0):
-            raise ValueError(f"coordination needs shrink in [0, 1] and floor in (0, 1), got {shrink}, {floor}")
-        self.shrink, self.floor = shrink, floor
+    def __init__(self, shrink: float = 0.0, floor: float = 1e-3, lag: int = 1, taps: int = 0) -> None:
+        if not (0.0 <= shrink <= 1.0 and 0.0 < floor < 1.0 and lag >= 1 and taps >= 0):
+            raise ValueError(
+                f"coordination needs shrink in [0, 1], floor in (0, 1), lag >= 1, taps >= 0; got {shrink}, {floor},"
+                f" {lag}, {taps}"
+            )
+        self.shrink, self.floor, self.lag, self.taps = shrink, floor, lag, taps
 
     def __call__(self, output: np.ndarray, context: ShapeContext) -> np.ndarray:
         if context.reference is None:
             raise ValueError("the coordination shaper needs the example's reference")
-        return coordination_transfer(output, context.example, context.reference, self.shrink, self.floor)
+        return coordination_transfer(
+            output, context.example, context.reference, self.shrink, self.floor, lag=self.lag, taps=self.taps
+        )
 
 
 @output_shapers.register("lock_feet")
@@ -146,6 +172,34 @@ class LockFeet(OutputShaper):
 
     def __call__(self, output: np.ndarray, context: ShapeContext) -> np.ndarray:
         return lock_feet(output)
+
+
+def toe_contacts(features: np.ndarray) -> np.ndarray:
+    """(T, 2) bool: the left and right toe contact channels of raw HumanML3D features (l_ankle, l_toe, r_ankle,
+    r_toe are the last four)."""
+    return features[:, -4:][:, [1, 3]] > 0.5
+
+
+@output_shapers.register("plant_feet")
+class PlantFeet(OutputShaper):
+    """The content's planted toes held still on the output's legs, and its swing toes' clearance kept
+    (``augment.motion.foot_lock.plant_feet``).
+
+    ``clearance``: the share of the content's toe height a swinging toe (not planted in the content) is kept above;
+    ``blend``: frames over which a planted toe's shift fades into the swing. Why: a map of the joint positions moves
+    the legs while the root path stays the content's, so feet slide when planted and skim the floor when swinging;
+    the content keeps its footfalls through a transfer, so its contacts and swing heights say where the feet go.
+    """
+
+    def __init__(self, blend: int = 4, clearance: float = 1.0) -> None:
+        if blend < 0 or not 0.0 <= clearance <= 1.0:
+            raise ValueError(f"plant_feet needs blend >= 0 and clearance in [0, 1], got {blend}, {clearance}")
+        self.blend, self.clearance = blend, clearance
+
+    def __call__(self, output: np.ndarray, context: ShapeContext) -> np.ndarray:
+        toes = np.asarray(features_to_joints(context.content))[:, [T2M.feet_left[1], T2M.feet_right[1]], 1]
+        floor = self.clearance * toes if self.clearance > 0 else None
+        return plant_feet(output, toe_contacts(context.content), blend=self.blend, clearance=floor)
 
 
 def with_bone_lengths(output: np.ndarray, content: np.ndarray) -> np.ndarray:
