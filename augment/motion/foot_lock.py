@@ -52,12 +52,13 @@ def _segments(mask: np.ndarray) -> list[tuple[int, int]]:
 
 
 def _pin_offsets(toe_xz: np.ndarray, contact: np.ndarray, blend: int) -> np.ndarray:
-    """(T, 2) ground-plane offsets that hold the toe at its mean place over each contact run, faded to zero over
+    """(T, 2) ground-plane offsets that hold the toe at its median place over each contact run (robust to the
+    fast frames a contact run can start or end with), faded to zero over
     ``blend`` frames on either side of a run (the nearest run's offset wins) so the swing joins without a jump."""
     offsets = np.zeros_like(toe_xz)
     weight = np.zeros(len(toe_xz))
     for first, last in _segments(contact):
-        target = toe_xz[first : last + 1].mean(0)
+        target = np.median(toe_xz[first : last + 1], axis=0)
         offsets[first : last + 1] = target - toe_xz[first : last + 1]
         weight[first : last + 1] = 1.0
         for side, edge in ((-1, first), (1, last)):
@@ -94,7 +95,7 @@ def plant_feet(
     """``features`` (T, D) whose toes stay put wherever ``contacts`` (T, 2: left, right toe) says a foot is planted,
     and, with ``clearance`` (T, 2: least toe heights), swing no lower than it elsewhere.
 
-    Each contact run holds its toe (and its ankle, by the same shift) at the toe's mean ground-plane place over the
+    Each contact run holds its toe (and its ankle, by the same shift) at the toe's median ground-plane place over the
     run; a swinging toe below its clearance is raised to it; the knee is solved by two-bone IK from the hip with the
     output's own thigh and shin lengths, so bones keep their lengths. Why: a whole-body map of the joint positions
     moves the legs while the root path stays the content's, so in double support the foot ``lock_feet`` does not
