@@ -1,5 +1,5 @@
-"""The coordination, bone-length and foot-lock shapers (``augment/methods/shapers.py``) on real-shaped features:
-what each keeps and moves."""
+"""The coordination (also over time lags), bone-length, foot-lock and foot-planting shapers
+(``augment/methods/shapers.py``) on real-shaped features: what each keeps and moves."""
 
 from __future__ import annotations
 
@@ -7,8 +7,16 @@ import numpy as np
 import pytest
 
 from motionaug.augment.methods.hooks import ShapeContext, output_shapers
-from motionaug.augment.methods.shapers import coordination_transfer, position_channels, with_bone_lengths
+from motionaug.augment.methods.shapers import (
+    coordination_transfer,
+    delays,
+    position_channels,
+    toe_contacts,
+    toe_heights,
+    with_bone_lengths,
+)
 from motionaug.augment.motion.features import features_to_joints
+from motionaug.augment.motion.foot_lock import plant_feet
 from motionaug.augment.synth.animator import sample_spec
 from motionaug.augment.synth.corpus import spec_to_clip
 from motionaug.schemas.skeleton import T2M
@@ -60,3 +68,43 @@ def test_bone_lengths_are_the_contents_again() -> None:
         bone_lengths(fixed), bone_lengths(content).mean(0)[None].repeat(len(fixed), 0), atol=1e-4
     )
     np.testing.assert_allclose(with_bone_lengths(content, content), content, atol=1e-5)  # a skeleton stays as it is
+
+
+def test_delays_stack_each_frame_with_the_frames_before_it() -> None:
+    x = np.arange(10, dtype=np.float64)[:, None]
+    stacked = delays(x, lag=2, taps=2)
+    np.testing.assert_array_equal(stacked[6], [6, 4, 2])
+    np.testing.assert_array_equal(stacked[1], [1, 0, 0])  # the first frame stands in before the clip starts
+    assert delays(x, lag=3, taps=0) is x
+
+
+def lagged_cross_covariance(x: np.ndarray, lag: int) -> np.ndarray:
+    d = x - x.mean(0)
+    return d[lag:].T @ d[:-lag] / (len(x) - lag)
+
+
+def test_the_lagged_map_keeps_a_content_with_its_example_and_moves_the_lagged_coupling_toward_the_examples() -> None:
+    content, example, reference = clip("neutral"), clip("old", seed=1), clip("neutral", seed=2)
+    same = coordination_transfer(content, example, example, 0.0, 1e-3, lag=3, taps=6)
+    np.testing.assert_allclose(same, content, atol=1e-4)
+    cols = position_channels()
+    out = coordination_transfer(reference, example, reference, 0.0, 1e-6, lag=3, taps=2)
+    want = lagged_cross_covariance(example[:, cols], 3)
+    for x in (reference, out):
+        assert np.isfinite(x).all()
+    gap = [np.abs(lagged_cross_covariance(x[:, cols], 3) - want).max() for x in (reference, out)]
+    assert gap[1] < 0.5 * gap[0]
+    with pytest.raises(ValueError, match="taps"):
+        output_shapers.create({"name": "coordination", "taps": -1})
+
+
+def test_plant_feet_registers_and_reads_the_contents_contacts() -> None:
+    content = clip("neutral")
+    example = clip("old", seed=1)
+    shaped = coordination_transfer(content, example, content, 0.0, 1e-3)
+    planted = output_shapers.create("plant_feet")(
+        shaped, ShapeContext(content=content, example=example, reference=content, fps=20.0)
+    )
+    np.testing.assert_array_equal(planted, plant_feet(shaped, toe_contacts(content), clearance=toe_heights(content)))
+    with pytest.raises(ValueError, match="clearance"):
+        output_shapers.create({"name": "plant_feet", "clearance": 2.0})

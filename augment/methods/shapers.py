@@ -3,11 +3,13 @@ transfer's output that read the content and, where they need one, the style exam
 clip standing in for the example's content performed plainly).
 
 - ``moments``: the example's posture and amplitude over its reference (AdaIN's moments);
-- ``coordination``: the example's change of joint covariance over its reference (whitening and colouring);
-- ``bone_lengths``: the content's bone lengths back; ``lock_feet``: planted feet held where they were planted.
+- ``coordination``: the example's change of joint covariance over its reference (whitening and colouring), over
+  a delay embedding where ``taps`` > 0 (the phase between limbs);
+- ``bone_lengths``: the content's bone lengths back; ``lock_feet``: the root moved so a planted foot stays put;
+- ``plant_feet``: the content's planted toes held still and its swing clearance kept, by moving the legs.
 
-Style-ERD's configs chain ``[coordination, moments, bone_lengths, lock_feet]``, chosen on the LSO fold 1 val split
-against each step's control (the step on the content clip, no network: ``bench/bench_lso.py run --row shapers``).
+Style-ERD's configs chain ``STYLE_ERD_CHAIN``, chosen on the LSO fold 1 val split against each step's control (the
+step on the content clip, no network: ``bench/bench_lso.py run --row shapers``).
 """
 
 from __future__ import annotations
@@ -180,6 +182,11 @@ def toe_contacts(features: np.ndarray) -> np.ndarray:
     return features[:, -4:][:, [1, 3]] > 0.5
 
 
+def toe_heights(features: np.ndarray) -> np.ndarray:
+    """(T, 2): the left and right toe's height above the floor."""
+    return np.asarray(features_to_joints(features))[:, [T2M.feet_left[1], T2M.feet_right[1]], 1]
+
+
 @output_shapers.register("plant_feet")
 class PlantFeet(OutputShaper):
     """The content's planted toes held still on the output's legs, and its swing toes' clearance kept
@@ -197,8 +204,7 @@ class PlantFeet(OutputShaper):
         self.blend, self.clearance = blend, clearance
 
     def __call__(self, output: np.ndarray, context: ShapeContext) -> np.ndarray:
-        toes = np.asarray(features_to_joints(context.content))[:, [T2M.feet_left[1], T2M.feet_right[1]], 1]
-        floor = self.clearance * toes if self.clearance > 0 else None
+        floor = self.clearance * toe_heights(context.content) if self.clearance > 0 else None
         return plant_feet(output, toe_contacts(context.content), blend=self.blend, clearance=floor)
 
 
