@@ -2,14 +2,12 @@
 transfer's output that read the content and, where they need one, the style example and its reference (the pool
 clip standing in for the example's content performed plainly).
 
-- ``moments``: the example's posture and amplitude over its reference (AdaIN's moments);
-- ``coordination``: the example's change of joint covariance over its reference (whitening and colouring), over
-  a delay embedding where ``taps`` > 0 (the phase between limbs);
-- ``bone_lengths``: the content's bone lengths back; ``lock_feet``: the root moved so a planted foot stays put;
-- ``plant_feet``: the content's planted toes held still and its swing clearance kept, by moving the legs.
+- ``moments``: the example's posture and amplitude over its reference (AdaIN's moments); ``coordination``: its
+  change of joint covariance over its reference (whitening and colouring), over time lags where ``taps`` > 0;
+- ``bone_lengths``: the content's bones back; ``lock_feet``: the root moved so a planted foot stays put;
+  ``plant_feet``: the content's planted toes held still and its swing clearance kept, by moving the legs.
 
-Style-ERD's configs chain ``STYLE_ERD_CHAIN``, chosen on the LSO fold 1 val split against each step's control (the
-step on the content clip, no network: ``bench/bench_lso.py run --row shapers``).
+Style-ERD's configs chain ``STYLE_ERD_CHAIN``, chosen on the LSO fold 1 val split against each step's control.
 """
 
 from __future__ import annotations
@@ -17,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from motionaug.augment.methods.hooks import HookSpec, OutputShaper, ShapeContext, output_shapers
+from motionaug.augment.metrics import foot_contacts_from_features
 from motionaug.augment.motion.features import feature_slices, features_to_joints
 from motionaug.augment.motion.foot_lock import lock_feet, plant_feet
 from motionaug.schemas.skeleton import T2M
@@ -144,10 +143,10 @@ class Coordination(OutputShaper):
     sees where posture and amplitude are gone. With ``taps`` > 0, x is each frame's positions stacked with those
     ``lag``, ..., ``taps`` x ``lag`` frames before (a delay embedding), so the map also carries the lagged
     cross-covariances: the phase between limbs, alike at zero lag for two limbs moving together or a quarter-cycle
-    apart. Taken relative to the reference, the content's own coordination (a
-    wave, a kick) is kept and only the style's change to it added: a content as plain as the reference comes out
-    with the example's covariance, and the same example and reference change nothing. Only the joint positions
-    change; the joint rotations and velocities stay the content's.
+    apart. Taken relative to the reference, the content's own coordination (a wave, a kick) is kept and only the
+    style's change to it added: a content as plain as the reference comes out with the example's covariance, and the
+    same example and reference change nothing. Only the joint positions change; the joint rotations and velocities
+    stay the content's.
     """
 
     needs_reference = True
@@ -177,9 +176,8 @@ class LockFeet(OutputShaper):
 
 
 def toe_contacts(features: np.ndarray) -> np.ndarray:
-    """(T, 2) bool: the left and right toe contact channels of raw HumanML3D features (l_ankle, l_toe, r_ankle,
-    r_toe are the last four)."""
-    return features[:, -4:][:, [1, 3]] > 0.5
+    """(T, 2) bool: the left and right toe contact channels of raw HumanML3D features."""
+    return foot_contacts_from_features(features)[:, [1, 3]]  # (l_ankle, l_toe, r_ankle, r_toe)
 
 
 def toe_heights(features: np.ndarray) -> np.ndarray:

@@ -52,9 +52,9 @@ def _segments(mask: np.ndarray) -> list[tuple[int, int]]:
 
 
 def _pin_offsets(toe_xz: np.ndarray, contact: np.ndarray, blend: int) -> np.ndarray:
-    """(T, 2) ground-plane offsets that hold the toe at its median place over each contact run (robust to the
-    fast frames a contact run can start or end with), faded to zero over
-    ``blend`` frames on either side of a run (the nearest run's offset wins) so the swing joins without a jump."""
+    """(T, 2) ground-plane offsets that hold the toe at its median place over each contact run (robust to the fast
+    frames a run can start or end with), faded to zero over ``blend`` frames on either side of a run (the nearest
+    run's offset wins) so the swing joins without a jump."""
     offsets = np.zeros_like(toe_xz)
     weight = np.zeros(len(toe_xz))
     for first, last in _segments(contact):
