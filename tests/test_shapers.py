@@ -108,3 +108,12 @@ def test_plant_feet_registers_and_reads_the_contents_contacts() -> None:
     np.testing.assert_array_equal(planted, plant_feet(shaped, toe_contacts(content), clearance=toe_heights(content)))
     with pytest.raises(ValueError, match="clearance"):
         output_shapers.create({"name": "plant_feet", "clearance": 2.0})
+
+
+def test_the_coordination_shaper_keeps_one_map_per_example_and_reference() -> None:
+    content, reference = clip("neutral"), clip("neutral", seed=2)
+    shaper = output_shapers.create({"name": "coordination", "lag": 3, "taps": 2})
+    for example in (clip("old", seed=1), clip("proud", seed=3), clip("old", seed=1)):
+        got = shaper(content, ShapeContext(content=content, example=example, reference=reference, fps=20.0))
+        want = coordination_transfer(content, example, reference, 0.0, 1e-3, lag=3, taps=2)
+        np.testing.assert_array_equal(got, want)  # a cached map is the map of this example, not the last one

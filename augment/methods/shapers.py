@@ -12,6 +12,8 @@ Style-ERD's configs chain ``STYLE_ERD_CHAIN``, chosen on the LSO fold 1 val spli
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 
 from motionaug.augment.methods.hooks import HookSpec, OutputShaper, ShapeContext, output_shapers
@@ -28,6 +30,7 @@ STYLE_ERD_CHAIN: tuple[HookSpec, ...] = (
     "plant_feet",
 )
 """The output shapers both Style-ERD configs and the demo chain after the network (module doc)."""
+MAPS_KEPT = 16  # coordination maps a shaper keeps (one per example and reference it has met)
 AMPLITUDE_MOST = 4.0  # the largest factor an output channel's deviations are scaled by (near-still channels)
 
 
@@ -108,6 +111,33 @@ def delays(x: np.ndarray, lag: int, taps: int) -> np.ndarray:
     return np.concatenate([padded[lag * taps - lag * i : len(padded) - lag * i] for i in range(taps + 1)], axis=1)
 
 
+def coordination_map(
+    example: np.ndarray,
+    reference: np.ndarray,
+    shrink: float,
+    floor: float,
+    cols: np.ndarray,
+    lag: int = 1,
+    taps: int = 0,
+) -> np.ndarray:
+    """A = S_e^(1/2) S_r^(-1/2) over the ``cols`` channels (each frame stacked with ``taps`` frames ``lag`` apart
+    before it where ``taps`` > 0): the same for every clip given one example, so a run computes it once per style."""
+    ex, ref = (delays(np.asarray(m[:, cols], dtype=np.float64), lag, taps) for m in (example, reference))
+    return _power(_covariance(ex, shrink), 0.5, floor) @ _power(_covariance(ref, shrink), -0.5, floor)
+
+
+def apply_coordination(
+    output: np.ndarray, colour: np.ndarray, cols: np.ndarray, lag: int = 1, taps: int = 0
+) -> np.ndarray:
+    """``output`` (T, F) with its ``cols`` channels' deviations from their means mapped by ``colour``; with taps, a
+    frame's output is the current block of the stacked map (a filter over the frames before it)."""
+    x = delays(np.asarray(output[:, cols], dtype=np.float64), lag, taps)
+    mean = x.mean(0)
+    out = output.copy()
+    out[:, cols] = (mean + (x - mean) @ colour.T)[:, : len(cols)].astype(np.float32)
+    return out
+
+
 def coordination_transfer(
     output: np.ndarray,
     example: np.ndarray,
@@ -119,16 +149,10 @@ def coordination_transfer(
     taps: int = 0,
 ) -> np.ndarray:
     """``output`` (T, F) with its position channels' deviations from their means mapped by S_e^(1/2) S_r^(-1/2);
-    ``cols``: the channels mapped (default every position channel); with ``taps`` > 0 the covariances are those of
-    each frame stacked with the ``taps`` frames ``lag`` apart before it, and a frame's output is the current block of
-    the stacked map (a filter over those frames)."""
+    ``cols``: the channels mapped (default every position channel); ``lag``, ``taps``: ``coordination_map``."""
     cols = position_channels() if cols is None else cols
-    ex, ref, x = (delays(np.asarray(m[:, cols], dtype=np.float64), lag, taps) for m in (example, reference, output))
-    colour = _power(_covariance(ex, shrink), 0.5, floor) @ _power(_covariance(ref, shrink), -0.5, floor)
-    mean = x.mean(0)
-    out = output.copy()
-    out[:, cols] = (mean + (x - mean) @ colour.T)[:, : len(cols)].astype(np.float32)
-    return out
+    colour = coordination_map(example, reference, shrink, floor, cols, lag, taps)
+    return apply_coordination(output, colour, cols, lag, taps)
 
 
 @output_shapers.register("coordination")
@@ -158,13 +182,24 @@ class Coordination(OutputShaper):
                 f" {lag}, {taps}"
             )
         self.shrink, self.floor, self.lag, self.taps = shrink, floor, lag, taps
+        self._maps: dict[bytes, np.ndarray] = {}  # by example and reference: a run shapes many clips per example
 
     def __call__(self, output: np.ndarray, context: ShapeContext) -> np.ndarray:
         if context.reference is None:
             raise ValueError("the coordination shaper needs the example's reference")
-        return coordination_transfer(
-            output, context.example, context.reference, self.shrink, self.floor, lag=self.lag, taps=self.taps
-        )
+        key = hashlib.blake2b(digest_size=16)
+        for m in (context.example, context.reference):
+            key.update(np.ascontiguousarray(m, dtype=np.float32).tobytes() + str(m.shape).encode())
+        cols = position_channels()
+        colour = self._maps.get(key.digest())
+        if colour is None:
+            if len(self._maps) >= MAPS_KEPT:
+                self._maps.pop(next(iter(self._maps)))
+            colour = coordination_map(
+                context.example, context.reference, self.shrink, self.floor, cols, self.lag, self.taps
+            )
+            self._maps[key.digest()] = colour
+        return apply_coordination(output, colour, cols, self.lag, self.taps)
 
 
 @output_shapers.register("lock_feet")
