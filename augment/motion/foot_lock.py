@@ -108,13 +108,13 @@ def plant_feet(
     r_rot, r_pos = recover_root_rot_pos(data)
     world = recover_from_ric(data, skeleton.n_joints).numpy()  # (T, J, 3)
     parents = skeleton.parents
-    for (ankle, toe), flags in zip((skeleton.feet_left, skeleton.feet_right), contacts.T):
+    for side, (ankle, toe) in enumerate((skeleton.feet_left, skeleton.feet_right)):
         knee = parents[ankle]
         hip = parents[knee]
-        shift = _pin_offsets(world[:, toe, [0, 2]], flags.astype(bool), blend)
+        flags = contacts[:, side].astype(bool)
+        shift = _pin_offsets(world[:, toe, [0, 2]], flags, blend)
         lift = np.zeros(len(world))
         if clearance is not None:
-            side = 0 if toe == skeleton.feet_left[1] else 1
             lift = np.where(flags, 0.0, np.maximum(clearance[:, side] - world[:, toe, 1], 0.0))
         if not shift.any() and not lift.any():
             continue
