@@ -42,17 +42,17 @@ from motionaug.augment.eval.protocol import (
     check_held_out,
     draw_examples,
     fold_of,
+    guarded,
     take_of,
 )
 from motionaug.augment.io import atomic_save_npy, atomic_write_text
 from motionaug.augment.methods.hooks import (
     HookSpec,
-    ShapeContext,
     import_hook_modules,
     output_shapers,
     parse_hook_specs,
 )
-from motionaug.augment.methods.shaping import nearest_root_motion, write_shaping
+from motionaug.augment.methods.shaping import nearest_root_motion, shape, write_shaping
 from motionaug.augment.metrics import matched_fmd, mean_foot_skating
 from motionaug.augment.motion.features import features_to_joints
 from motionaug.augment.motion.foot_lock import lock_feet
@@ -160,6 +160,26 @@ Transfers = dict[tuple[str, int, int], list[tuple[str, np.ndarray]]]
 """(style, draw, k) -> (source id, output features) of every transfer."""
 
 
+def extra_example(args: argparse.Namespace, style: str, draw: int) -> MotionClip:
+    """The scenario's added example: draw ``draw``'s take of ``style`` with content ``--extra-example`` from the
+    val split, a take no judge and no trained part saw and no row scores (only neutral takes are scored)."""
+    takes = sorted(
+        (c for c in Corpus(args.corpus, split="val") if c.style == style and c.content == args.extra_example),
+        key=lambda c: c.id,
+    )
+    if not takes:
+        raise MotionDataError(f"--extra-example {args.extra_example}", f"no val take of style {style!r} has it")
+    return guarded([takes[draw % len(takes)]], (c.id for c in scored_clips(args.corpus, args.kind, args.split)))[0]
+
+
+def reference_of(example: MotionClip, plain: dict[str, MotionClip], by: str) -> tuple[str, np.ndarray]:
+    """An example's reference (id, motion): the plain train clip nearest by root motion (``root``, a run's rule when
+    the user names none) or, among the plain clips of the example's own content, the one a user would name
+    (``content``; the example's label is the user's knowledge, no scored clip's)."""
+    alike = {i: c for i, c in plain.items() if by == "root" or c.content == example.content}
+    return nearest_root_motion(example.motion, {i: c.motion for i, c in alike.items()})
+
+
 def shaper_row(
     args: argparse.Namespace,
     fold_corpus: Path,
@@ -168,26 +188,24 @@ def shaper_row(
     originals: dict[str, MotionClip],
     shapers: list[HookSpec],
 ) -> Transfers:
-    """Output shapers on each content clip, in order, no network (their control): each reads the k examples against
-    each example's nearest plain train clip by root motion (the same reference rule as a run's shapers), all in the
-    corpus's features as a run's shapers read them."""
-    plain = {c.id: c.motion for c in Corpus(fold_corpus, split="train") if c.style == NEUTRAL[args.kind]}
+    """Output shapers on each content clip, in order, no network (their control): the product's ``shape``, so each
+    clip is shaped with the example its id and motion pick against that example's reference (``reference_of``),
+    all in the corpus's features as a run's shapers read them; ``--extra-example`` adds one example per draw."""
+    plain = {c.id: c for c in Corpus(fold_corpus, split="train") if c.style == NEUTRAL[args.kind]}
     steps = output_shapers.create_all(shapers)
     out: Transfers = {}
     for style in styles:
         for draw in range(len(draws.draws[style])):
             for k in args.k:
-                examples = [originals[i].motion for i in examples_of(draws, style, draw, k)]
-                example = np.concatenate(examples)
-                reference = np.concatenate([nearest_root_motion(e, plain)[1] for e in examples])
-                rows = []
-                for clip in blind(scored_clips(args.corpus, args.kind, args.split)):
-                    context = ShapeContext(content=clip.motion, example=example, reference=reference, fps=clip.fps)
-                    shaped = clip.motion
-                    for step in steps:
-                        shaped = step(shaped, context)
-                    rows.append((clip.id, shaped))
-                out[(style, draw, k)] = rows
+                examples = [originals[i] for i in examples_of(draws, style, draw, k)]
+                if args.extra_example:
+                    examples.append(extra_example(args, style, draw))
+                references = [reference_of(e, plain, args.references)[1] for e in examples]
+                motions = [e.motion for e in examples]
+                out[(style, draw, k)] = [
+                    (clip.id, shape(clip.motion, clip, steps, motions, references))
+                    for clip in blind(scored_clips(args.corpus, args.kind, args.split))
+                ]
     return out
 
 
@@ -233,18 +251,24 @@ def method_row(
     held-out style), examples given as files, content pool from the fold corpus's train split."""
     shipped = load_run_config(REPO / "configs" / CONFIGS[args.kind].format(method=args.row))
     example_dir = args.work / "examples"
+    plain = {c.id: c for c in Corpus(fold_corpus, split="train") if c.style == NEUTRAL[args.kind]}
     out: Transfers = {}
     for draw in range(len(next(iter(draws.draws.values())))):
         for k in args.k:
             style_specs = []
             for style in styles:
                 spec = style_spec(shipped, style)
+                examples = [originals[i] for i in examples_of(draws, style, draw, k)]
+                if args.extra_example:
+                    examples.append(extra_example(args, style, draw))
                 files = []
-                for i in examples_of(draws, style, draw, k):
-                    path = example_dir / f"{i}.npy"
+                for example in examples:
+                    path = example_dir / f"{example.id}.npy"
                     if not path.is_file():
-                        atomic_save_npy(path, originals[i].motion)
+                        atomic_save_npy(path, example.motion)
                     files.append({"source": str(path), "description": spec.examples[0].description})
+                    if args.references == "content":  # named; else the run picks by root motion
+                        files[-1]["reference"] = reference_of(example, plain, "content")[0]
                 style_specs.append({**spec.model_dump(mode="json"), "examples": files})
             data = json.loads(shipped.model_dump_json())
             data["styles"] = style_specs
@@ -305,6 +329,8 @@ def run(args: argparse.Namespace) -> None:
         "split": args.split,
         "overrides": args.set,
         "shapers": args.shapers if args.row == "shapers" else None,
+        "extra_example": args.extra_example,
+        "references": args.references,
         "hook_modules": args.hook_modules,
         "k": args.k,
         "seed": args.seed,
@@ -600,6 +626,8 @@ def main(argv: list[str] | None = None) -> None:
         help="run --row shapers: output shapers on the content clip, in order (NAME or NAME:KEY=VALUE:...)",
     )
     parser.add_argument("--hook-modules", nargs="*", default=[], help="run: modules registering hooks (lab.NAME)")
+    parser.add_argument("--extra-example", default=None, help="run: add each style's val take of this content")
+    parser.add_argument("--references", choices=["root", "content"], default="root", help="run: examples' references")
     parser.add_argument("--variant", default="", help="run: the variant's name, in the row and unit file names")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=2)

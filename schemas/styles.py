@@ -32,6 +32,12 @@ class StyleExample(BaseModel):
     source: str = Field(min_length=1, description="Corpus clip id, or a path to a .npy (T, 263) or .bvh file.")
     description: str = Field(min_length=1, description="e.g. 'a person walks proudly'.")
     joint_map: str | None = Field(default=None, description="Joint map file for a .bvh of a non-built-in skeleton.")
+    reference: str | None = Field(
+        default=None,
+        min_length=1,
+        description="Corpus clip id of this example's motion performed plainly (a plain wave for a styled wave): "
+        "the output shapers' reference for it; else the plain pool clip whose root moves most like it.",
+    )
 
 
 class StyleSpec(BaseModel):

@@ -58,6 +58,7 @@ FAST = [
     Case("missing-corpus", ("run", "nocorpus.yaml"), 2, "corpus.path"),
     Case("missing-example-file", ("run", "nofile.yaml"), 2, "nope.npy not found"),
     Case("example-not-in-corpus", ("run", "noexample.yaml", "--out", "run-b"), 2, "'999999' is not in the corpus"),
+    Case("reference-not-in-corpus", ("run", "noref.yaml", "--out", "run-b"), 2, "reference: clip id '999999' is not"),
     Case("short-example", ("run", "short.yaml", "--out", "run-b"), 2, "too short: 5 frames < 20"),
     Case("caption-separator", ("run", "hash.yaml", "--out", "run-b"), 2, "holds '#'"),
     Case("missing-split-file", ("run", "good.yaml", "--set", "corpus.split=nope"), 2, "corpus.split: "),
@@ -226,6 +227,9 @@ def _build_scene(root: Path) -> None:
         data = _config(corpus)
         data["styles"][0]["examples"][0]["source"] = source
         _write_yaml(root / f"{name}.yaml", data)
+    noref = _config(corpus)
+    noref["styles"][0]["examples"][0]["reference"] = "999999"
+    _write_yaml(root / "noref.yaml", noref)
     np.save(root / "short.npy", np.zeros((5, 263), dtype=np.float32))
     hashed = _config(corpus)
     hashed["styles"][0]["words"]["phrases"] = ["in a #1 way"]

@@ -51,14 +51,11 @@ class JointDistance(LossTerm):
         return (batch.predicted - batch.target).norm(dim=-1)[batch.mask].mean()
 
 
-def run_config(corpus: Path, out: Path, modules: list[str], method: dict | None = None):
-    styles = [
-        {
-            "name": "proud",
-            "words": {"adjective": "proud", "adverb": "proudly"},
-            "examples": [{"source": "000004", "description": "a person walks proudly"}],
-        }
-    ]
+def run_config(corpus: Path, out: Path, modules: list[str], method: dict | None = None, reference: str | None = None):
+    example = {"source": "000004", "description": "a person walks proudly"} | (
+        {"reference": reference} if reference else {}
+    )
+    styles = [{"name": "proud", "words": {"adjective": "proud", "adverb": "proudly"}, "examples": [example]}]
     data = {
         "corpus": {"path": str(corpus), "filters": {"source_styles": ["neutral"], "min_frames": 40}},
         "styles": styles,
@@ -87,11 +84,13 @@ def test_specs_and_unknown_modules_are_one_line() -> None:
 def test_a_shaper_defined_in_a_test_module_runs_in_the_ray_workers(tmp_path: Path) -> None:
     import ray
 
+    from motionaug.workflows.pipeline import named_references
     from motionaug.workflows.ray_executor import execute_run
 
     corpus = tmp_path / "corpus"
     generate_corpus(corpus, 24, seed=0)
-    config = run_config(corpus, tmp_path / "run", ["tests.test_hooks"])
+    plain = sorted(c.id for c in Corpus(corpus) if c.style == "neutral")[-1]
+    config = run_config(corpus, tmp_path / "run", ["tests.test_hooks"], reference=plain)
     try:
         execute_run(config)
     finally:
@@ -103,7 +102,11 @@ def test_a_shaper_defined_in_a_test_module_runs_in_the_ray_workers(tmp_path: Pat
     for row in rows:  # the shapers ran, in order: every output is its source
         np.testing.assert_array_equal(row_motion(row), sources[row["source_id"]].motion)
     shaping = load_file(str(tmp_path / "run" / "styles" / "proud" / SHAPING_FILE))
-    assert set(shaping) == {"example.0", "reference.0"}  # the moments shaper's reference, picked at prepare
+    assert set(shaping) == {"example.0", "reference.0"}  # the moments shaper's reference, stored at prepare
+    np.testing.assert_array_equal(shaping["reference.0"], sources[plain].motion)  # the one the example names
+    unknown = run_config(corpus, tmp_path / "run2", [], reference="no_such_clip")
+    with pytest.raises(MotionDataError, match="example '000004'.*reference 'no_such_clip' is not in the corpus"):
+        named_references(unknown.styles[0], unknown)
 
 
 def test_a_loss_term_defined_in_a_test_module_trains_in_the_ray_workers(tmp_path: Path) -> None:

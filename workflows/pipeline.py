@@ -230,6 +230,21 @@ def load_examples(style: StyleSpec, config: RunConfig) -> list[MotionClip]:
     return load_style_examples(style, corpus.get)
 
 
+def named_references(style: StyleSpec, config: RunConfig) -> list[MotionClip | None]:
+    """Each example's ``reference`` clip from the run's corpus (None where the example names none)."""
+    corpus = Corpus(config.corpus.path)
+    found: list[MotionClip | None] = []
+    for example in style.examples:
+        clip = corpus.get(example.reference) if example.reference else None
+        if example.reference and clip is None:
+            raise MotionDataError(
+                f"style {style.name!r} example {example.source!r}",
+                f"reference {example.reference!r} is not in the corpus",
+            )
+        found.append(clip)
+    return found
+
+
 # ---- the stage contract ---------------------------------------------------------------------------------
 
 
@@ -453,7 +468,8 @@ class PrepareStage(Stage):
         content = pool if method.content_clips() else []
         prepared = method.prepare(style, examples, self.trained, content, tmp, seed=seed)
         if shapers:  # beside the method's artefact, in its checksum: the examples and the shapers' references
-            write_shaping(tmp, style_name, examples, pool, shapers)
+            named = named_references(style, self.config) if any(e.reference for e in style.examples) else []
+            write_shaping(tmp, style_name, examples, pool, shapers, named)
         write_timings(prepared, time.perf_counter() - started)
         returned = Path(prepared.folder)
         inner = returned.relative_to(tmp) if returned != tmp else Path()

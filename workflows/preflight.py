@@ -106,10 +106,14 @@ def check_style_words(config: RunConfig) -> None:
 
 def check_examples(config: RunConfig) -> None:
     """Every style example loads as the prepare stage will load it: found, long enough, its description naming
-    the style. A clip id is looked up in the whole corpus (an example may come from another split)."""
+    the style, its named reference in the corpus. A clip id is looked up in the whole corpus (an example may come
+    from another split)."""
     corpus = Corpus(config.corpus.path)
     for i, style in enumerate(config.styles):
         for j, example in enumerate(style.examples):
+            if example.reference is not None and corpus.get(example.reference) is None:
+                where = f"config styles[{i}].examples[{j}].reference"
+                raise MotionConfigError(where, f"clip id {example.reference!r} is not in the corpus")
             if Path(example.source).suffix.lower() in (".npy", ".bvh"):
                 continue
             if corpus.get(example.source) is None:

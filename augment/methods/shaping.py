@@ -31,6 +31,7 @@ from motionaug.schemas.skeleton import T2M
 SHAPING_FILE = "_shaping.safetensors"
 REFERENCE_POOL = 64  # plain pool clips the plan hands the prepare stage to pick references from
 MIN_REFERENCE_FRAMES = 8
+TRAVEL_SPEED = 0.3  # m/s of mean ground speed: walks and runs are above 0.6, waves and hand raises below 0.15
 
 
 def pool_size(specs: Sequence[HookSpec]) -> int:
@@ -70,20 +71,35 @@ def usable(clip: MotionClip, width: int) -> bool:
 
 
 def write_shaping(
-    folder: Path, style: str, examples: Sequence[MotionClip], pool: Sequence[MotionClip], specs: Sequence[HookSpec]
+    folder: Path,
+    style: str,
+    examples: Sequence[MotionClip],
+    pool: Sequence[MotionClip],
+    specs: Sequence[HookSpec],
+    named: Sequence[MotionClip | None] = (),
 ) -> None:
-    """The style's examples and, when a shaper reads one, each example's reference, into ``folder``."""
+    """The style's examples and, when a shaper reads one, each example's reference into ``folder``: the clip the
+    user named for it (``named[i]``, the example's motion performed plainly), else the pool's nearest by root
+    motion."""
     tensors = {f"example.{i}": np.ascontiguousarray(e.motion, dtype=np.float32) for i, e in enumerate(examples)}
     references: list[str] = []
     if needs_reference(specs):
         width = examples[0].motion.shape[1]
         candidates = {c.id: c.motion for c in pool if usable(c, width)}
-        if not candidates:
+        if named and len(named) != len(examples):
+            raise ValueError(f"{len(named)} named references for {len(examples)} examples")
+        for clip in named:
+            if clip is not None and not usable(clip, width):
+                raise MotionDataError(f"reference {clip.id!r}", "is not a usable reference (width, length, NaN)")
+        if not candidates and (not named or any(clip is None for clip in named)):
             raise MotionDataError(
                 f"style {style!r}", "the output shapers need usable plain pool clips to pick the references from"
             )
         for i, example in enumerate(examples):
-            reference_id, reference = nearest_root_motion(example.motion, candidates)
+            given = named[i] if named else None
+            reference_id, reference = (
+                (given.id, given.motion) if given is not None else nearest_root_motion(example.motion, candidates)
+            )
             references.append(reference_id)
             tensors[f"reference.{i}"] = np.ascontiguousarray(reference, dtype=np.float32)
     metadata = {"examples": json.dumps([e.id for e in examples]), "references": json.dumps(references)}
@@ -101,9 +117,19 @@ def read_shaping(folder: Path) -> tuple[list[np.ndarray], list[np.ndarray]]:
     return examples, references
 
 
-def example_index(clip_id: str, n_examples: int) -> int:
-    """Which example shapes a clip's output: one per clip, chosen by its id (batch-independent)."""
-    return zlib.crc32(clip_id.encode("utf-8")) % n_examples
+def travels(motion: np.ndarray, fps: float) -> bool:
+    """Whether a clip goes somewhere (a walk, a run) rather than staying in place (a wave): its mean ground speed
+    against ``TRAVEL_SPEED``."""
+    velocity = np.asarray(motion)[:, feature_slices(T2M)["root_lin_vel"]]
+    return bool(np.linalg.norm(velocity, axis=1).mean() * fps > TRAVEL_SPEED)
+
+
+def example_index(clip_id: str, clip_travels: bool, examples_travel: Sequence[bool]) -> int:
+    """Which example a clip is transferred and shaped with: of the examples that move as the clip does (travelling
+    or in place; all of them where none does), the one its id picks (batch-independent). Why: a style's change to a
+    walk says little of its change to a wave, so a user who gives one of each gets each where it applies."""
+    alike = [i for i, t in enumerate(examples_travel) if t == clip_travels] or list(range(len(examples_travel)))
+    return alike[zlib.crc32(clip_id.encode("utf-8")) % len(alike)]
 
 
 def shape(
@@ -115,7 +141,9 @@ def shape(
 ) -> np.ndarray:
     """``output`` through the shapers in order, against the content clip and the example (with its reference) that
     the content's id picks."""
-    picked = example_index(content.id, len(examples))
+    picked = example_index(
+        content.id, travels(content.motion, content.fps), [travels(e, content.fps) for e in examples]
+    )
     reference = references[picked] if references else None
     context = ShapeContext(content.motion.astype(np.float32), examples[picked], reference, content.fps)
     for shaper in shapers:

@@ -49,7 +49,7 @@ from motionaug.augment.methods.common import (
     write_artifact,
 )
 from motionaug.augment.methods.hooks import HookSpec, SamplerStep, sampler_callbacks
-from motionaug.augment.methods.shaping import example_index
+from motionaug.augment.methods.shaping import example_index, travels
 from motionaug.augment.methods.umsd.training import (
     META_FILE,
     WEIGHTS_FILE,
@@ -314,6 +314,9 @@ class UmsdStyleModel:
         self.model = model
         self.net = model.net.eval().requires_grad_(False)
         self.examples = [e.float() for e in examples]
+        fps = model.info.fps
+        raw = (model.normalizer.denormalize(e.numpy()) for e in self.examples)
+        self.examples_travel = [travels(m, fps) for m in raw]
         self.params = params
         self.vocab = style_vocab(style.words, style.name)
         self.kept = trajectory_channels(KEPT)
@@ -331,10 +334,10 @@ class UmsdStyleModel:
         captions = revised_texts(clip, self.spec.words, self.params.caption_variants, clip_seed, self.vocab)
         return _Job(index, clip, motion, captions)
 
-    def example_index(self, clip_id: str) -> int:
-        """Which style example a clip is conditioned on: one per clip, chosen by its id (batch-independent), the
-        one that shapes its output too."""
-        return example_index(clip_id, len(self.examples))
+    def example_index(self, clip: MotionClip, motion: np.ndarray) -> int:
+        """Which style example a clip (raw features ``motion``) is conditioned on: the one that shapes its output
+        too (``shaping.example_index``)."""
+        return example_index(clip.id, travels(motion, clip.fps), self.examples_travel)
 
     def transfer(self, clips: Sequence[MotionClip], seed: int = 0) -> list[TransferOutput | Reject]:
         """Stylize a batch; a clip that cannot be used (NaN, wrong width, too short or long) is a ``Reject``."""
@@ -405,7 +408,7 @@ class UmsdStyleModel:
         for start in range(0, len(pieces), size):
             chunk = pieces[start : start + size]
             content = MotionBatch.from_motions([motions[j][a:b] for j, a, b in chunk], None)
-            picks = [self.example_index(jobs[j].clip.id) for j, _, _ in chunk]
+            picks = [self.example_index(jobs[j].clip, jobs[j].motion) for j, _, _ in chunk]
             style, style_mask = pad_batch([self.examples[i] for i in picks])
             noise, _ = pad_batch([noises[j][a:b] for j, a, b in chunk])
             out = self.sample(content, style, style_mask, noise).numpy()

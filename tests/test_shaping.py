@@ -1,0 +1,69 @@
+"""Which example shapes a clip, and which reference stands for each example (``augment/methods/shaping.py``)."""
+
+from __future__ import annotations
+
+import zlib
+
+import numpy as np
+import pytest
+
+from motionaug.augment.corpus.clip import MotionClip
+from motionaug.augment.methods.hooks import output_shapers
+from motionaug.augment.methods.shaping import example_index, read_shaping, shape, travels, write_shaping
+from motionaug.schemas.errors import MotionDataError
+
+FPS = 20.0
+
+
+def motion(speed: float, seed: int, frames: int = 60) -> np.ndarray:
+    """Features (frames, 263) of a clip moving forwards at ``speed`` m/s, the rest noise."""
+    rng = np.random.default_rng(seed)
+    m = rng.normal(0, 0.05, (frames, 263)).astype(np.float32)
+    m[:, 1:3] = [0.0, speed / FPS]  # root_lin_vel: metres a frame in the facing frame (x, z)
+    m[:, 3] = 0.95
+    return m
+
+
+def test_a_clip_that_travels_is_told_apart_from_one_that_stays_in_place() -> None:
+    assert travels(motion(1.2, 0), FPS) and travels(motion(2.9, 1), FPS)  # a walk, a run
+    assert not travels(motion(0.02, 2), FPS) and not travels(motion(0.1, 3), FPS)  # a wave, a shuffle on the spot
+
+
+def test_a_clip_gets_an_example_that_moves_as_it_does_picked_by_its_id() -> None:
+    ids = [f"clip_{i:03d}" for i in range(40)]
+    walks_and_a_wave = [True, True, False]
+    for clip_id in ids:
+        assert example_index(clip_id, False, walks_and_a_wave) == 2  # the only in-place example
+        assert example_index(clip_id, True, walks_and_a_wave) in (0, 1)
+        # where every example moves alike (or none like the clip), the pick is the id's alone, as it always was
+        assert example_index(clip_id, False, [True] * 3) == zlib.crc32(clip_id.encode()) % 3
+        assert example_index(clip_id, True, [True] * 3) == zlib.crc32(clip_id.encode()) % 3
+    assert {example_index(i, True, walks_and_a_wave) for i in ids} == {0, 1}  # both walks get used
+
+
+def test_shape_uses_the_in_place_example_for_an_in_place_clip() -> None:
+    walk, wave = motion(1.2, 10), motion(0.02, 11) * 1.5
+    walk_reference, wave_reference = motion(1.0, 12), motion(0.03, 13)
+    steps = output_shapers.create_all(["moments"])
+    for clip_id in ("a", "b", "c", "d"):
+        content = MotionClip(clip_id, motion(0.02, 14), [], FPS)
+        both = shape(content.motion, content, steps, [walk, wave], [walk_reference, wave_reference])
+        alone = shape(content.motion, content, steps, [wave], [wave_reference])
+        np.testing.assert_array_equal(both, alone)
+
+
+def test_a_named_reference_stands_for_its_example_and_a_bad_one_is_refused(tmp_path) -> None:
+    examples = [MotionClip("ex_walk", motion(1.2, 20), []), MotionClip("ex_wave", motion(0.0, 21), [])]
+    pool = [MotionClip(f"pool_{i}", motion(1.0 + 0.1 * i, 30 + i), []) for i in range(4)]
+    plain_wave = MotionClip("plain_wave", motion(0.01, 40), [])
+    write_shaping(tmp_path, "elderly", examples, pool, ["moments"], [None, plain_wave])
+    _, references = read_shaping(tmp_path)
+    np.testing.assert_array_equal(references[1], plain_wave.motion)  # the user's, not the pool's nearest walk
+    assert any(np.array_equal(references[0], c.motion) for c in pool)  # none named: the pool's nearest
+    # the named references cover every example, so no pool is needed
+    write_shaping(tmp_path, "elderly", examples[1:], [], ["moments"], [plain_wave])
+    short = MotionClip("too_short", motion(0.0, 41, frames=3), [])
+    with pytest.raises(MotionDataError, match="reference 'too_short'.*not a usable reference"):
+        write_shaping(tmp_path, "elderly", examples[1:], pool, ["moments"], [short])
+    with pytest.raises(MotionDataError, match="need usable plain pool clips"):
+        write_shaping(tmp_path, "elderly", examples, [], ["moments"], [None, plain_wave])
