@@ -20,7 +20,7 @@ import numpy as np
 from motionaug.augment.corpus import Corpus
 from motionaug.augment.eval.protocol import ExampleDraws
 from motionaug.augment.methods.hooks import ShapeContext, import_hook_modules, output_shapers, parse_hook_specs
-from motionaug.augment.methods.shaping import nearest_root_motion
+from motionaug.augment.methods.shaping import nearest_root_motion, travels
 from motionaug.augment.motion.features import features_to_joints
 from motionaug.augment.render.previews import Panel, SheetRow, render_contact_sheet
 from motionaug.schemas.skeleton import T2M
@@ -53,6 +53,11 @@ def main() -> None:
     parser.add_argument("--hook-modules", nargs="*", default=[])
     parser.add_argument("--bones", action="store_true", help="print each chain's bone-length change, no sheet")
     parser.add_argument("--out", type=Path)
+    parser.add_argument(
+        "--example-content",
+        help="also each chain with the style's val take of this content as the example, "
+        "against the plain train clip of its content nearest by root motion (the B2w scenario, bench/RESULTS.md 0)",
+    )
     args = parser.parse_args()
     import_hook_modules(args.hook_modules)
     path = REPO / "bench" / "lso" / f"{args.kind}-draws.json"
@@ -65,6 +70,15 @@ def main() -> None:
     def context_for(style: str, source: np.ndarray) -> ShapeContext:
         example = train[draws.draws[style][args.draw][0]].motion
         return ShapeContext(content=source, example=example, reference=nearest_root_motion(example, plain)[1], fps=20.0)
+
+    def example_of_content(style: str, source: np.ndarray) -> ShapeContext:
+        takes = sorted(
+            (c for c in Corpus(args.corpus, split="val") if c.style == style and c.content == args.example_content),
+            key=lambda c: c.id,
+        )
+        example = takes[args.draw % len(takes)].motion
+        alike = {i: c.motion for i, c in train.items() if c.style == NEUTRAL and c.content == args.example_content}
+        return ShapeContext(content=source, example=example, reference=nearest_root_motion(example, alike)[1], fps=20.0)
 
     if args.bones:
         sources = [c.motion for c in scored if c.style == NEUTRAL]
@@ -92,6 +106,10 @@ def main() -> None:
         panels = [Panel(features_to_joints(source.motion), "content")]
         for chain, specs in chains.items():
             panels.append(Panel(features_to_joints(shaped(source.motion, specs, context)), chain, color="#c05621"))
+            if args.example_content and not travels(source.motion, 20.0):  # a run picks it for in-place clips
+                other = example_of_content(style, source.motion)
+                label = f"{chain}, {args.example_content} example"
+                panels.append(Panel(features_to_joints(shaped(source.motion, specs, other)), label, color="#6b46c1"))
         if real is not None:
             panels.append(Panel(features_to_joints(real.motion), f"real {style}", color="#2f855a"))
         rows.append(SheetRow(f"{content}: {source.id}", panels))
