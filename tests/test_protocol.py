@@ -196,6 +196,12 @@ def test_a_leaking_run_is_refused_before_it_starts(corpus: Path, tmp_path: Path)
     leaky_example = protocol_config("stats", corpus, corpus, tmp_path / "run", tmp_path / "trained", scored_example)
     with pytest.raises(ProtocolLeak, match="style examples are scored takes"):
         check_held_out(leaky_example)
+    styles = [
+        s.model_copy(update={"examples": [s.examples[0].model_copy(update={"reference": scored[1]})]})
+        for s in config.styles
+    ]
+    with pytest.raises(ProtocolLeak, match=f"named references are scored takes \\({scored[1]}"):
+        check_held_out(config.model_copy(update={"styles": styles}))
     on_all = config.model_copy(update={"corpus": config.corpus.model_copy(update={"split": "all"})})
     assert any("train split" in r for r in held_out_leaks(on_all))
 

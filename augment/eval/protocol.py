@@ -185,7 +185,8 @@ def held_out_leaks(config: RunConfig) -> list[str]:
     """Why a run's figures would not be held out: each way a scored clip can reach its method (empty: none).
 
     The scored clips are the run's own (``corpus.split``); the method learns from its pool (``corpus.pool_split``,
-    the run's own clips when unset), its style examples and, for methods that train, ``base_models.corpus``.
+    the run's own clips when unset), its style examples and their named references and, for methods that train,
+    ``base_models.corpus``.
     """
     corpus = config.corpus.path
     scored = split_members(corpus, config.corpus.split)
@@ -200,6 +201,10 @@ def held_out_leaks(config: RunConfig) -> list[str]:
     overlap = scored_overlap(examples, scored)
     if overlap:
         reasons.append(f"style examples are scored takes ({', '.join(overlap[:3])})")
+    named = [e.reference for s in config.styles for e in s.examples if e.reference]
+    overlap = scored_overlap(named, scored)
+    if overlap:
+        reasons.append(f"the examples' named references are scored takes ({', '.join(overlap[:3])})")
     trained_on = config.base_models.corpus or corpus
     if Path(trained_on).resolve() == Path(corpus).resolve() and scored_overlap(split_members(corpus, "train"), scored):
         reasons.append("the train split the method trains on holds scored takes")

@@ -31,7 +31,7 @@ from motionaug.schemas.skeleton import T2M
 SHAPING_FILE = "_shaping.safetensors"
 REFERENCE_POOL = 64  # plain pool clips the plan hands the prepare stage to pick references from
 MIN_REFERENCE_FRAMES = 8
-TRAVEL_SPEED = 0.3  # m/s of mean ground speed: walks and runs are above 0.6, waves and hand raises below 0.15
+TRAVEL_SPEED = 0.3  # m/s of mean ground speed: below a slow walk, above shifting weight on the spot
 
 
 def pool_size(specs: Sequence[HookSpec]) -> int:
