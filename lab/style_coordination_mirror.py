@@ -12,8 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from motionaug.augment.methods.hooks import OutputShaper, ShapeContext, output_shapers
-from motionaug.augment.methods.shapers import _covariance, _power, apply_coordination, delays, position_channels
+from lab.coordination_maps import MapShaper
+from motionaug.augment.methods.hooks import output_shapers
+from motionaug.augment.methods.shapers import _covariance, _power, delays
 from motionaug.augment.motion.features import mirror_features
 
 
@@ -24,21 +25,9 @@ def mirrored_covariance(motion: np.ndarray, cols: np.ndarray, lag: int, taps: in
 
 
 @output_shapers.register("coordination_mirror")
-class CoordinationMirror(OutputShaper):
+class CoordinationMirror(MapShaper):
     """The product's map from mirror-pooled covariances (module doc)."""
 
-    needs_reference = True
-
-    def __init__(self, lag: int = 3, taps: int = 6, floor: float = 1e-3) -> None:
-        self.lag, self.taps, self.floor = lag, taps, floor
-        self._maps: dict[int, np.ndarray] = {}
-
-    def __call__(self, output: np.ndarray, context: ShapeContext) -> np.ndarray:
-        if context.reference is None:
-            raise ValueError("the coordination_mirror shaper needs the example's reference")
-        cols = position_channels()
-        key = hash((context.example.tobytes(), context.reference.tobytes()))
-        if key not in self._maps:
-            e, r = (mirrored_covariance(m, cols, self.lag, self.taps) for m in (context.example, context.reference))
-            self._maps[key] = _power(e, 0.5, self.floor) @ _power(r, -0.5, self.floor)
-        return apply_coordination(output, self._maps[key], cols, self.lag, self.taps)
+    def build(self, example: np.ndarray, reference: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        e, r = (mirrored_covariance(m, cols, self.lag, self.taps) for m in (example, reference))
+        return _power(e, 0.5, self.floor) @ _power(r, -0.5, self.floor)

@@ -15,15 +15,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from motionaug.augment.methods.hooks import OutputShaper, ShapeContext, output_shapers
-from motionaug.augment.methods.shapers import (
-    _covariance,
-    _power,
-    apply_coordination,
-    coordination_map,
-    delays,
-    position_channels,
-)
+from lab.coordination_maps import MapShaper
+from motionaug.augment.methods.hooks import output_shapers
+from motionaug.augment.methods.shapers import _covariance, _power, coordination_map, delays
 
 
 def ot_map(
@@ -36,25 +30,19 @@ def ot_map(
     return inverse_root @ _power((middle + middle.T) / 2, 0.5, floor) @ inverse_root
 
 
-class _Strength(OutputShaper):
-    needs_reference = True
+class _Strength(MapShaper):
+    """A map at a strength: I + s (M - I), M from ``base_map``."""
 
     def __init__(self, lag: int = 3, taps: int = 6, floor: float = 1e-3, strength: float = 1.0) -> None:
-        self.lag, self.taps, self.floor, self.strength = lag, taps, floor, strength
-        self._maps: dict[int, np.ndarray] = {}
+        super().__init__(lag, taps, floor)
+        self.strength = strength
 
     def base_map(self, example: np.ndarray, reference: np.ndarray, cols: np.ndarray) -> np.ndarray:
         raise NotImplementedError
 
-    def __call__(self, output: np.ndarray, context: ShapeContext) -> np.ndarray:
-        if context.reference is None:
-            raise ValueError("this shaper needs the example's reference")
-        cols = position_channels()
-        key = hash((context.example.tobytes(), context.reference.tobytes()))
-        if key not in self._maps:
-            base = self.base_map(context.example, context.reference, cols)
-            self._maps[key] = np.eye(len(base)) + self.strength * (base - np.eye(len(base)))
-        return apply_coordination(output, self._maps[key], cols, self.lag, self.taps)
+    def build(self, example: np.ndarray, reference: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        base = self.base_map(example, reference, cols)
+        return np.eye(len(base)) + self.strength * (base - np.eye(len(base)))
 
 
 @output_shapers.register("coordination_ot")

@@ -13,14 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from motionaug.augment.methods.hooks import OutputShaper, ShapeContext, output_shapers
-from motionaug.augment.methods.shapers import (
-    _covariance,
-    apply_coordination,
-    coordination_map,
-    delays,
-    position_channels,
-)
+from lab.coordination_maps import MapShaper
+from motionaug.augment.methods.hooks import output_shapers
+from motionaug.augment.methods.shapers import _covariance, coordination_map, delays
 
 
 def subspace_map(
@@ -39,22 +34,12 @@ def subspace_map(
 
 
 @output_shapers.register("coordination_subspace")
-class CoordinationSubspace(OutputShaper):
+class CoordinationSubspace(MapShaper):
     """The product's map inside the reference's subspace, identity outside (module doc)."""
 
-    needs_reference = True
-
     def __init__(self, lag: int = 3, taps: int = 6, floor: float = 1e-3, keep: float = 0.99) -> None:
-        self.lag, self.taps, self.floor, self.keep = lag, taps, floor, keep
-        self._maps: dict[int, np.ndarray] = {}
+        super().__init__(lag, taps, floor)
+        self.keep = keep
 
-    def __call__(self, output: np.ndarray, context: ShapeContext) -> np.ndarray:
-        if context.reference is None:
-            raise ValueError("the coordination_subspace shaper needs the example's reference")
-        cols = position_channels()
-        key = hash((context.example.tobytes(), context.reference.tobytes()))
-        if key not in self._maps:
-            self._maps[key] = subspace_map(
-                context.example, context.reference, cols, self.lag, self.taps, self.floor, self.keep
-            )
-        return apply_coordination(output, self._maps[key], cols, self.lag, self.taps)
+    def build(self, example: np.ndarray, reference: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        return subspace_map(example, reference, cols, self.lag, self.taps, self.floor, self.keep)
