@@ -160,16 +160,35 @@ Transfers = dict[tuple[str, int, int], list[tuple[str, np.ndarray]]]
 """(style, draw, k) -> (source id, output features) of every transfer."""
 
 
-def extra_example(args: argparse.Namespace, style: str, draw: int) -> MotionClip:
-    """The scenario's added example: draw ``draw``'s take of ``style`` with content ``--extra-example`` from the
-    val split, a take no judge and no trained part saw and no row scores (only neutral takes are scored)."""
-    takes = sorted(
-        (c for c in Corpus(args.corpus, split="val") if c.style == style and c.content == args.extra_example),
-        key=lambda c: c.id,
-    )
-    if not takes:
-        raise MotionDataError(f"--extra-example {args.extra_example}", f"no val take of style {style!r} has it")
-    return guarded([takes[draw % len(takes)]], (c.id for c in scored_clips(args.corpus, args.kind, args.split)))[0]
+def extra_takes(args: argparse.Namespace, styles: list[str]) -> dict[str, list[MotionClip]]:
+    """``--extra-example``: each style's val takes of that content (empty when unset), takes no judge and no trained
+    part saw and no row scores (only neutral takes are scored)."""
+    if not args.extra_example:
+        return {}
+    scored = [c.id for c in scored_clips(args.corpus, args.kind, args.split)]
+    val = [c for c in Corpus(args.corpus, split="val") if c.content == args.extra_example]
+    takes: dict[str, list[MotionClip]] = {}
+    for style in styles:
+        found = sorted((c for c in val if c.style == style), key=lambda c: c.id)
+        if not found:
+            raise MotionDataError(f"--extra-example {args.extra_example}", f"no val take of style {style!r} has it")
+        takes[style] = guarded(found, scored)
+    return takes
+
+
+def example_clips(
+    draws: ExampleDraws,
+    style: str,
+    draw: int,
+    k: int,
+    originals: dict[str, MotionClip],
+    extras: dict[str, list[MotionClip]],
+) -> list[MotionClip]:
+    """Draw ``draw``'s first k takes, then the scenario's added take of the style (``extra_takes``) where set."""
+    examples = [originals[i] for i in examples_of(draws, style, draw, k)]
+    if style in extras:
+        examples.append(extras[style][draw % len(extras[style])])
+    return examples
 
 
 def reference_of(example: MotionClip, plain: dict[str, MotionClip], by: str) -> tuple[str, np.ndarray]:
@@ -193,13 +212,12 @@ def shaper_row(
     all in the corpus's features as a run's shapers read them; ``--extra-example`` adds one example per draw."""
     plain = {c.id: c for c in Corpus(fold_corpus, split="train") if c.style == NEUTRAL[args.kind]}
     steps = output_shapers.create_all(shapers)
+    extras = extra_takes(args, styles)
     out: Transfers = {}
     for style in styles:
         for draw in range(len(draws.draws[style])):
             for k in args.k:
-                examples = [originals[i] for i in examples_of(draws, style, draw, k)]
-                if args.extra_example:
-                    examples.append(extra_example(args, style, draw))
+                examples = example_clips(draws, style, draw, k, originals, extras)
                 references = [reference_of(e, plain, args.references)[1] for e in examples]
                 motions = [e.motion for e in examples]
                 out[(style, draw, k)] = [
@@ -251,23 +269,23 @@ def method_row(
     held-out style), examples given as files, content pool from the fold corpus's train split."""
     shipped = load_run_config(REPO / "configs" / CONFIGS[args.kind].format(method=args.row))
     example_dir = args.work / "examples"
-    plain = {c.id: c for c in Corpus(fold_corpus, split="train") if c.style == NEUTRAL[args.kind]}
+    named = args.references == "content"  # else the run picks each reference by root motion
+    plain = {c.id: c for c in Corpus(fold_corpus, split="train") if c.style == NEUTRAL[args.kind]} if named else {}
+    extras = extra_takes(args, styles)
     out: Transfers = {}
     for draw in range(len(next(iter(draws.draws.values())))):
         for k in args.k:
             style_specs = []
             for style in styles:
                 spec = style_spec(shipped, style)
-                examples = [originals[i] for i in examples_of(draws, style, draw, k)]
-                if args.extra_example:
-                    examples.append(extra_example(args, style, draw))
+                examples = example_clips(draws, style, draw, k, originals, extras)
                 files = []
                 for example in examples:
                     path = example_dir / f"{example.id}.npy"
                     if not path.is_file():
                         atomic_save_npy(path, example.motion)
                     files.append({"source": str(path), "description": spec.examples[0].description})
-                    if args.references == "content":  # named; else the run picks by root motion
+                    if named:
                         files[-1]["reference"] = reference_of(example, plain, "content")[0]
                 style_specs.append({**spec.model_dump(mode="json"), "examples": files})
             data = json.loads(shipped.model_dump_json())

@@ -104,10 +104,15 @@ def main() -> None:
             continue
         context = context_for(style, source.motion)
         panels = [Panel(features_to_joints(source.motion), "content")]
+        # the run picks the other example for in-place clips only
+        other = (
+            example_of_content(style, source.motion)
+            if args.example_content and not travels(source.motion, 20.0)
+            else None
+        )
         for chain, specs in chains.items():
             panels.append(Panel(features_to_joints(shaped(source.motion, specs, context)), chain, color="#c05621"))
-            if args.example_content and not travels(source.motion, 20.0):  # a run picks it for in-place clips
-                other = example_of_content(style, source.motion)
+            if other is not None:
                 label = f"{chain}, {args.example_content} example"
                 panels.append(Panel(features_to_joints(shaped(source.motion, specs, other)), label, color="#6b46c1"))
         if real is not None:
