@@ -72,6 +72,7 @@ CONFIGS = {"bandai2": "bandai2-{method}.yaml", "synthetic": "{method}-synthetic.
 DRAWS, K_MAX = 3, 3
 TEMPO_CAP = 196  # on-the-fly's prior's longest clip (its base models' max_frames): a slowed clip is cut there
 CROSS_DRAWS = 2
+CROSS_JUDGES = "cross-judges"  # the dataset-1 style judges' folder under --work and their summary under RESULTS
 STYLE_JUDGES = ("style", "style_clip")
 CROSS_WORDS = {  # Bandai dataset-1's styles that no Bandai-2 or synthetic style stands for, in caption words
     "happy": StyleWords(adjective="happy", adverb="happily", phrases=("in a happy way",)),
@@ -522,7 +523,7 @@ def cross_setup(args: argparse.Namespace) -> None:
             read, _ = judges.predict(name, [c.motion for c in held])
             right = [judges.labels(name)[int(i)] == c.style for i, c in zip(read, held)]
             loco.setdefault(name, {})[content] = float(np.mean(right)) if right else float("nan")
-    fit_judges(clips, args.work / "cross-judges", epochs=args.judge_epochs, seed=args.seed, which=STYLE_JUDGES)
+    fit_judges(clips, args.work / args.judges, epochs=args.judge_epochs, seed=args.seed, which=STYLE_JUDGES)
     summary = {
         "commit": commit(),
         "train_clips": len(clips),
@@ -530,7 +531,7 @@ def cross_setup(args: argparse.Namespace) -> None:
         "loco_accuracy": {name: float(np.nanmean(list(v.values()))) for name, v in loco.items()},
         "loco_by_content": loco,
     }
-    atomic_write_text(RESULTS / "cross-judges.json", json.dumps(summary, indent=1) + "\n")
+    atomic_write_text(RESULTS / f"{args.judges}.json", json.dumps(summary, indent=1) + "\n")
 
 
 def cross_run(args: argparse.Namespace) -> None:
@@ -545,12 +546,14 @@ def cross_run(args: argparse.Namespace) -> None:
     if args.row == "content":
         sources = blind(scored_clips(args.corpus, args.kind, args.split))
         transfers = {(s, d, 1): [(c.id, c.motion) for c in sources] for s in styles for d in range(CROSS_DRAWS)}
-    elif args.row == "moments":
-        transfers = shaper_row(args, fold_corpus, draws, styles, novel, ["moments"])
+    elif args.row in ("moments", "shapers"):
+        shapers = ["moments"] if args.row == "moments" else parse_hook_specs(args.shapers)
+        import_hook_modules(args.hook_modules)
+        transfers = shaper_row(args, fold_corpus, draws, styles, novel, shapers)
     else:
         transfers = method_row(args, fold_corpus, draws, styles, novel, tag="cross-")
     seconds = time.perf_counter() - start
-    style_judges = load_judges(args.work / "cross-judges")
+    style_judges = load_judges(args.work / args.judges)
     content_judges = load_judges(args.work / "judges")
     content_of = {c.id: c.content for c in Corpus(args.corpus, split=args.split)}
     units = []
@@ -575,12 +578,20 @@ def cross_run(args: argparse.Namespace) -> None:
     result = {
         "units": units,
         "commit": commit(),
-        "row": args.row,
+        "row": row_name(args),
         "fold": args.fold,
         "split": args.split,
+        "shapers": args.shapers if args.row == "shapers" else None,
+        "judges": args.judges,
         "seconds": round(seconds, 1),
     }
-    write_unit(f"cross-{args.fold}-{args.row}-{args.split}", result)
+    write_unit(f"cross-{args.fold}-{row_name(args)}-{args.split}{judges_suffix(args)}", result)
+
+
+def judges_suffix(args: argparse.Namespace) -> str:
+    """The cross units' file name tail: none for the first fit of the dataset-1 judges, else their name (a refit
+    reads differently on 175 clips, so its units are gathered apart)."""
+    return "" if args.judges == CROSS_JUDGES else f"-{args.judges}"
 
 
 def cross_rate(units: list[dict[str, Any]], judge: str, walk_run: bool = False) -> float:
@@ -595,7 +606,7 @@ def cross_rate(units: list[dict[str, Any]], judge: str, walk_run: bool = False) 
 
 
 def cross_gather(args: argparse.Namespace) -> None:
-    judges = json.loads((RESULTS / "cross-judges.json").read_text(encoding="utf-8"))
+    judges = json.loads((RESULTS / f"{args.judges}.json").read_text(encoding="utf-8"))
     loco = judges["loco_accuracy"]
     print(
         f"judge on dataset-1 ({judges['train_clips']} clips): leave-one-content-out accuracy "
@@ -603,7 +614,7 @@ def cross_gather(args: argparse.Namespace) -> None:
     )
     print("| row | SRA j1 | SRA j2 | SRA j1 walk/run | SRA j2 walk/run | CRA c1 | CRA c2 | most read (j1) | s |")
     print("|---|---|---|---|---|---|---|---|---|")
-    for path in sorted(RESULTS.glob(f"cross-fold*-*-{args.split}.json")):
+    for path in sorted(RESULTS.glob(f"cross-fold*-*-{args.split}{judges_suffix(args)}.json")):
         result = json.loads(path.read_text(encoding="utf-8"))
         units = result["units"]
 
@@ -650,6 +661,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--judge-epochs", type=int, default=40)
+    parser.add_argument("--judges", default=CROSS_JUDGES, help="cross*: the dataset-1 judges' name (a refit's)")
     parser.add_argument("--wide", action="store_true", help="gather: one line per row, both folds, k = 1 and 3")
     parser.add_argument("--draws-only", action="store_true", help="setup: fix the example draws, fit no judges yet")
     args = parser.parse_args(argv)
