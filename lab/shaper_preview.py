@@ -20,8 +20,9 @@ import numpy as np
 from motionaug.augment.corpus import Corpus
 from motionaug.augment.eval.protocol import ExampleDraws
 from motionaug.augment.methods.hooks import ShapeContext, import_hook_modules, output_shapers, parse_hook_specs
-from motionaug.augment.methods.shaping import nearest_root_motion, travels
+from motionaug.augment.methods.shaping import nearest_root_motion
 from motionaug.augment.motion.features import features_to_joints
+from motionaug.augment.motion.travel import travels
 from motionaug.augment.render.previews import Panel, SheetRow, render_contact_sheet
 from motionaug.schemas.skeleton import T2M
 

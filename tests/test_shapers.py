@@ -117,3 +117,23 @@ def test_the_coordination_shaper_keeps_one_map_per_example_and_reference() -> No
         got = shaper(content, ShapeContext(content=content, example=example, reference=reference, fps=20.0))
         want = coordination_transfer(content, example, reference, 0.0, 1e-3, lag=3, taps=2)
         np.testing.assert_array_equal(got, want)  # a cached map is the map of this example, not the last one
+
+
+def test_a_clip_travelling_against_the_example_is_mapped_played_backwards() -> None:
+    example, reference = clip("proud", seed=3), clip("neutral", seed=2)  # forward walks
+    backward, forward = clip("neutral", "walk_backward", seed=4), clip("neutral", seed=5)
+    lagged = output_shapers.create({"name": "coordination", "lag": 3, "taps": 2})
+
+    def shaped(shaper, content: np.ndarray) -> np.ndarray:
+        return shaper(content, ShapeContext(content=content, example=example, reference=reference, fps=20.0))
+
+    played_back = coordination_transfer(backward[::-1].copy(), example, reference, 0.0, 1e-3, lag=3, taps=2)[::-1]
+    as_recorded = coordination_transfer(backward, example, reference, 0.0, 1e-3, lag=3, taps=2)
+    np.testing.assert_allclose(shaped(lagged, backward), played_back, atol=1e-6)
+    assert np.abs(played_back - as_recorded).max() > 1e-2  # the lag's direction matters to this clip
+    want = coordination_transfer(forward, example, reference, 0.0, 1e-3, lag=3, taps=2)
+    np.testing.assert_array_equal(shaped(lagged, forward), want)  # a clip going the example's way: as before
+    zero_lag = output_shapers.create("coordination")  # no lag, no direction in time: one map either way
+    np.testing.assert_allclose(
+        shaped(zero_lag, backward), coordination_transfer(backward, example, reference, 0.0, 1e-3), atol=1e-6
+    )

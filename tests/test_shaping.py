@@ -9,7 +9,8 @@ import pytest
 
 from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.methods.hooks import output_shapers
-from motionaug.augment.methods.shaping import example_index, read_shaping, shape, travels, write_shaping
+from motionaug.augment.methods.shaping import example_index, read_shaping, shape, write_shaping
+from motionaug.augment.motion.travel import heading, opposed, travels
 from motionaug.schemas.errors import MotionDataError
 
 FPS = 20.0
@@ -27,6 +28,16 @@ def motion(speed: float, seed: int, frames: int = 60) -> np.ndarray:
 def test_a_clip_that_travels_is_told_apart_from_one_that_stays_in_place() -> None:
     assert travels(motion(1.2, 0), FPS) and travels(motion(2.9, 1), FPS)  # a walk, a run
     assert not travels(motion(0.02, 2), FPS) and not travels(motion(0.1, 3), FPS)  # a wave, a shuffle on the spot
+
+
+def test_a_clip_travelling_the_other_way_from_the_example_is_told_apart() -> None:
+    backward, sideways = motion(-1.2, 4), motion(1.2, 5)
+    sideways[:, 1:3] = [1.2 / FPS, 0.0]
+    assert heading(motion(1.2, 0)) > 0.9 and heading(backward) < -0.9 and abs(heading(sideways)) < 0.1
+    assert opposed(backward, motion(1.2, 0), FPS) and opposed(motion(1.2, 0), backward, FPS)
+    assert not opposed(motion(1.3, 6), motion(1.2, 0), FPS)  # both forwards
+    assert not opposed(sideways, backward, FPS)  # a sidestep goes neither way
+    assert not opposed(motion(-0.1, 7), motion(1.2, 0), FPS)  # a shuffle on the spot does not travel
 
 
 def test_a_clip_gets_an_example_that_moves_as_it_does_picked_by_its_id() -> None:

@@ -20,6 +20,7 @@ from motionaug.augment.methods.hooks import HookSpec, OutputShaper, ShapeContext
 from motionaug.augment.metrics import foot_contacts_from_features
 from motionaug.augment.motion.features import feature_slices, features_to_joints
 from motionaug.augment.motion.foot_lock import lock_feet, plant_feet
+from motionaug.augment.motion.travel import opposed
 from motionaug.schemas.skeleton import T2M
 
 STYLE_ERD_CHAIN: tuple[HookSpec, ...] = (
@@ -160,17 +161,18 @@ class Coordination(OutputShaper):
     """The example's covariance change over its reference on the output's joint positions.
 
     The positions' deviations x -> A x with A = S_e^(1/2) S_r^(-1/2), S_e and S_r the example's and the reference's
-    covariances over their frames, each shrunk toward its diagonal by ``shrink``, eigenvalues floored at ``floor`` x
-    the largest. Why: the moment rule is AdaIN's per-channel mean and variance; the whitening and colouring
-    transform (Li et al., "Universal style transfer via feature transforms", NeurIPS 2017) is its full-covariance
-    form and carries how a style couples the arms, the trunk and the legs, which a clip-standardised judge still
-    sees where posture and amplitude are gone. With ``taps`` > 0, x is each frame's positions stacked with those
-    ``lag``, ..., ``taps`` x ``lag`` frames before (a delay embedding), so the map also carries the lagged
-    cross-covariances: the phase between limbs, alike at zero lag for two limbs moving together or a quarter-cycle
-    apart. Taken relative to the reference, the content's own coordination (a wave, a kick) is kept and only the
-    style's change to it added: a content as plain as the reference comes out with the example's covariance, and the
-    same example and reference change nothing. Only the joint positions change; the joint rotations and velocities
-    stay the content's.
+    covariances over their frames, each shrunk toward its diagonal by ``shrink``, eigenvalues floored at ``floor`` x the
+    largest. Why: the moment rule is AdaIN's per-channel mean and variance; the whitening and colouring transform (Li et
+    al., "Universal style transfer via feature transforms", NeurIPS 2017) is its full-covariance form and carries how a
+    style couples the arms, the trunk and the legs, which a clip-standardised judge still sees where posture and
+    amplitude are gone. With ``taps`` > 0, x is each frame's positions stacked with those ``lag``, ..., ``taps`` x
+    ``lag`` frames before (a delay embedding), so the map also carries the lagged cross-covariances: the phase between
+    limbs, alike at zero lag for two limbs moving together or a quarter-cycle apart. That phase has a direction in time,
+    so a clip that travels against the example (a backward walk under a forward walk's map, ``travel.opposed``) is
+    mapped played backwards, where its limbs lead as the example's do. Taken relative to the reference, the content's
+    own coordination (a wave, a kick) is kept and only the style's change to it added: a content as plain as the
+    reference comes out with the example's covariance, and the same example and reference change nothing. Only the joint
+    positions change; the joint rotations and velocities stay the content's.
     """
 
     needs_reference = True
@@ -199,6 +201,8 @@ class Coordination(OutputShaper):
                 context.example, context.reference, self.shrink, self.floor, cols, self.lag, self.taps
             )
             self._maps[key.digest()] = colour
+        if self.taps and opposed(context.content, context.example, context.fps):
+            return apply_coordination(output[::-1], colour, cols, self.lag, self.taps)[::-1].copy()
         return apply_coordination(output, colour, cols, self.lag, self.taps)
 
 

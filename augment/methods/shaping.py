@@ -24,6 +24,7 @@ from motionaug.augment.corpus.rejects import Reject
 from motionaug.augment.methods.base import StyleModel
 from motionaug.augment.methods.hooks import HookSpec, OutputShaper, ShapeContext, needs_reference
 from motionaug.augment.motion.features import feature_slices
+from motionaug.augment.motion.travel import travels
 from motionaug.augment.outputs.shards import TransferOutput
 from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.skeleton import T2M
@@ -31,7 +32,6 @@ from motionaug.schemas.skeleton import T2M
 SHAPING_FILE = "_shaping.safetensors"
 REFERENCE_POOL = 64  # plain pool clips the plan hands the prepare stage to pick references from
 MIN_REFERENCE_FRAMES = 8
-TRAVEL_SPEED = 0.3  # m/s of mean ground speed: below a slow walk, above shifting weight on the spot
 
 
 def pool_size(specs: Sequence[HookSpec]) -> int:
@@ -115,13 +115,6 @@ def read_shaping(folder: Path) -> tuple[list[np.ndarray], list[np.ndarray]]:
     examples = [tensors[f"example.{i}"] for i in range(sum(k.startswith("example.") for k in tensors))]
     references = [tensors[f"reference.{i}"] for i in range(sum(k.startswith("reference.") for k in tensors))]
     return examples, references
-
-
-def travels(motion: np.ndarray, fps: float) -> bool:
-    """Whether a clip goes somewhere (a walk, a run) rather than staying in place (a wave): its mean ground speed
-    against ``TRAVEL_SPEED``."""
-    velocity = np.asarray(motion)[:, feature_slices(T2M)["root_lin_vel"]]
-    return bool(np.linalg.norm(velocity, axis=1).mean() * fps > TRAVEL_SPEED)
 
 
 def example_index(clip_id: str, clip_travels: bool, examples_travel: Sequence[bool]) -> int:

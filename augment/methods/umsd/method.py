@@ -49,7 +49,7 @@ from motionaug.augment.methods.common import (
     write_artifact,
 )
 from motionaug.augment.methods.hooks import HookSpec, SamplerStep, sampler_callbacks
-from motionaug.augment.methods.shaping import example_index, travels
+from motionaug.augment.methods.shaping import example_index
 from motionaug.augment.methods.umsd.training import (
     META_FILE,
     WEIGHTS_FILE,
@@ -62,6 +62,7 @@ from motionaug.augment.methods.umsd.training import (
     x0_from_output,
 )
 from motionaug.augment.motion.batch import pad_batch
+from motionaug.augment.motion.travel import travels
 from motionaug.schemas.captions import Caption
 from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.styles import StyleSpec
