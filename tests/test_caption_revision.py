@@ -140,6 +140,15 @@ def test_neutralise_and_has_style_words() -> None:
         neutralise_caption(Caption(text="proudly."), vocab=WORDS)
 
 
+def test_a_word_joining_two_styled_verbs_stays_and_revision_is_idempotent_there() -> None:
+    # "and" between two style words goes with them only where it coordinates those words, not two verbs
+    joined = Caption(text="walks angrily and angrily walks a")
+    assert neutralise_caption(joined, vocab=WORDS).text == "walks and walks a"
+    assert neutralise_caption(Caption(text="a person proudly and angrily walks"), vocab=WORDS).text == "a person walks"
+    revised = revise_caption(Caption(text="walks and walks a"), ANGRY, 0, vocab=WORDS)
+    assert revise_caption(revised, ANGRY, 0, vocab=WORDS) == revised
+
+
 def test_captions_without_tokens_are_tagged_by_rule() -> None:
     plain = Caption(text="A man walks forward, then sits down.")
     revised = revise_caption(plain, PROUD, "adverb", vocab=WORDS)

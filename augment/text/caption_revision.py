@@ -407,9 +407,27 @@ def _matches(doc: _Doc, forms: Sequence[_Form]) -> set[int]:
                 continue
             hit.update(span)
     for j in range(1, len(counted) - 1):
-        if doc.words[counted[j]].pos == "CCONJ" and j - 1 in hit and j + 1 in hit:
+        if (
+            doc.words[counted[j]].pos == "CCONJ"
+            and j - 1 in hit
+            and j + 1 in hit
+            and not _joins_verbs(doc, counted, hit, j)
+        ):
             hit.add(j)  # "proudly and angrily" -> nothing left to coordinate
     return {counted[j] for j in hit}
+
+
+def _joins_verbs(doc: _Doc, counted: list[int], hit: set[int], j: int) -> bool:
+    """The coordinating word at counted position ``j`` joins two verb phrases, each with its own style form
+    ("walks angrily and angrily walks"): a verb just before the forms on its left and just after those on its right."""
+    start, end = j - 1, j + 1
+    while start - 1 in hit:
+        start -= 1
+    while end + 1 in hit:
+        end += 1
+    before = doc.words[counted[start - 1]].pos if start > 0 else ""
+    after = doc.words[counted[end + 1]].pos if end + 1 < len(counted) else ""
+    return before == "VERB" and after == "VERB"
 
 
 def _before_person(doc: _Doc, counted: list[int], j: int) -> bool:
