@@ -310,6 +310,12 @@ def method_row(
     return out
 
 
+def row_shapers(args: argparse.Namespace) -> list[HookSpec]:
+    """A shapers row's chain: the moment rule for ``moments``, else ``--shapers`` (after ``--hook-modules``)."""
+    import_hook_modules(args.hook_modules)
+    return ["moments"] if args.row == "moments" else parse_hook_specs(args.shapers)
+
+
 def row_name(args: argparse.Namespace) -> str:
     """The row as units and run folders name it: the method, plus ``--variant`` for a design tried on val."""
     return f"{args.row}+{args.variant}" if args.variant else args.row
@@ -332,9 +338,7 @@ def run(args: argparse.Namespace) -> None:
         ]
         transfers = {(s, d, k): sources for s in styles for d in range(DRAWS) for k in args.k}
     elif args.row in ("moments", "shapers"):
-        shapers = ["moments"] if args.row == "moments" else parse_hook_specs(args.shapers)
-        import_hook_modules(args.hook_modules)
-        transfers = shaper_row(args, fold_corpus, draws, styles, train_clips(args.corpus), shapers)
+        transfers = shaper_row(args, fold_corpus, draws, styles, train_clips(args.corpus), row_shapers(args))
     elif args.row == "tempo":
         transfers = tempo_row(args, styles)
     else:
@@ -547,9 +551,7 @@ def cross_run(args: argparse.Namespace) -> None:
         sources = blind(scored_clips(args.corpus, args.kind, args.split))
         transfers = {(s, d, 1): [(c.id, c.motion) for c in sources] for s in styles for d in range(CROSS_DRAWS)}
     elif args.row in ("moments", "shapers"):
-        shapers = ["moments"] if args.row == "moments" else parse_hook_specs(args.shapers)
-        import_hook_modules(args.hook_modules)
-        transfers = shaper_row(args, fold_corpus, draws, styles, novel, shapers)
+        transfers = shaper_row(args, fold_corpus, draws, styles, novel, row_shapers(args))
     else:
         transfers = method_row(args, fold_corpus, draws, styles, novel, tag="cross-")
     seconds = time.perf_counter() - start
