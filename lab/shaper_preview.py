@@ -27,7 +27,7 @@ from motionaug.augment.render.previews import Panel, SheetRow, render_contact_sh
 from motionaug.schemas.skeleton import T2M
 
 REPO = Path(__file__).resolve().parents[1]
-NEUTRAL = "normal"
+NEUTRAL = {"bandai2": "normal", "synthetic": "neutral"}  # each corpus kind's plain style
 
 
 def bone_lengths(joints: np.ndarray) -> np.ndarray:
@@ -61,10 +61,11 @@ def main() -> None:
     )
     args = parser.parse_args()
     import_hook_modules(args.hook_modules)
+    neutral = NEUTRAL[args.kind]
     path = REPO / "bench" / "lso" / f"{args.kind}-draws.json"
     draws = ExampleDraws.model_validate_json(path.read_text(encoding="utf-8"))
     train = {c.id: c for c in Corpus(args.corpus, split="train")}
-    plain = {i: c.motion for i, c in train.items() if c.style == NEUTRAL}  # in every fold's corpus
+    plain = {i: c.motion for i, c in train.items() if c.style == neutral}  # in every fold's corpus
     scored = list(Corpus(args.corpus, split=args.split))
     chains = {chain: parse_hook_specs(chain) for chain in args.chains}
 
@@ -78,11 +79,11 @@ def main() -> None:
             key=lambda c: c.id,
         )
         example = takes[args.draw % len(takes)].motion
-        alike = {i: c.motion for i, c in train.items() if c.style == NEUTRAL and c.content == args.example_content}
+        alike = {i: c.motion for i, c in train.items() if c.style == neutral and c.content == args.example_content}
         return ShapeContext(content=source, example=example, reference=nearest_root_motion(example, alike)[1], fps=20.0)
 
     if args.bones:
-        sources = [c.motion for c in scored if c.style == NEUTRAL]
+        sources = [c.motion for c in scored if c.style == neutral]
         for chain, specs in chains.items():
             change = [
                 np.abs(
@@ -99,7 +100,7 @@ def main() -> None:
         parser.error("--out is needed for the sheet")
     style, rows = args.style[0], []
     for content in args.contents:
-        source = next((c for c in scored if c.style == NEUTRAL and c.content == content), None)
+        source = next((c for c in scored if c.style == neutral and c.content == content), None)
         real = next((c for c in scored if c.style == style and c.content == content), None)
         if source is None:
             continue
