@@ -1,7 +1,8 @@
 """The shape every lab variant of the coordination map shares: a map built once per example and reference, applied
 to each output as the product's ``coordination`` applies its own (``augment/methods/shapers.apply_coordination``).
 
-A variant subclasses ``MapShaper``, registers itself as an output shaper and gives ``build``.
+A variant subclasses ``MapShaper``, registers itself as an output shaper and gives ``build`` (and ``apply`` where it
+applies the map otherwise).
 """
 
 from __future__ import annotations
@@ -25,6 +26,10 @@ class MapShaper(OutputShaper):
     def build(self, example: np.ndarray, reference: np.ndarray, cols: np.ndarray) -> np.ndarray:
         raise NotImplementedError
 
+    def apply(self, output: np.ndarray, colour: np.ndarray, cols: np.ndarray, context: ShapeContext) -> np.ndarray:
+        """The map on one output, as the product's ``coordination`` applies it (a variant may apply it otherwise)."""
+        return apply_coordination(output, colour, cols, self.lag, self.taps)
+
     def __call__(self, output: np.ndarray, context: ShapeContext) -> np.ndarray:
         if context.reference is None:
             raise ValueError(f"{type(self).__name__} needs the example's reference")
@@ -32,4 +37,4 @@ class MapShaper(OutputShaper):
         key = hash((context.example.tobytes(), context.reference.tobytes()))
         if key not in self._maps:
             self._maps[key] = self.build(context.example, context.reference, cols)
-        return apply_coordination(output, self._maps[key], cols, self.lag, self.taps)
+        return self.apply(output, self._maps[key], cols, context)

@@ -43,29 +43,35 @@ def evidence(motion: np.ndarray, basis: np.ndarray, lag: int = LAG, taps: int = 
     return float(((x @ basis) ** 2).sum() / max((x**2).sum(), 1e-12))
 
 
+class Evidence:
+    """Each reference's leading basis, kept, and a clip's share of variance in it (``evidence``)."""
+
+    def __init__(self, share: float) -> None:
+        self.share = share
+        self._bases: dict[int, np.ndarray] = {}
+
+    def __call__(self, motion: np.ndarray, reference: np.ndarray) -> float:
+        key = hash(reference.tobytes())
+        if key not in self._bases:
+            self._bases[key] = leading_basis(reference, self.share)
+        return evidence(motion, self._bases[key])
+
+
 @output_shapers.register("coordination_gated")
 class CoordinationGated(MapShaper):
     """The product's map, blended with the identity by the clip's share of variance in the reference's subspace."""
 
-    def __init__(self, lag: int = 3, taps: int = 6, floor: float = 1e-3, share: float = 0.99) -> None:
+    def __init__(self, lag: int = LAG, taps: int = TAPS, floor: float = 1e-3, share: float = 0.99) -> None:
         super().__init__(lag, taps, floor)
-        self.share = share
-        self._bases: dict[int, np.ndarray] = {}
+        self.evidence = Evidence(share)
 
     def build(self, example: np.ndarray, reference: np.ndarray, cols: np.ndarray) -> np.ndarray:
         return coordination_map(example, reference, 0.0, self.floor, cols, self.lag, self.taps)
 
-    def __call__(self, output: np.ndarray, context: ShapeContext) -> np.ndarray:
-        if context.reference is None:
-            raise ValueError("coordination_gated needs the example's reference")
-        cols = position_channels()
-        key = hash((context.example.tobytes(), context.reference.tobytes()))
-        if key not in self._maps:
-            self._maps[key] = self.build(context.example, context.reference, cols)
-            self._bases[key] = leading_basis(context.reference, self.share, self.lag, self.taps)
-        strength = evidence(output, self._bases[key], self.lag, self.taps)
-        colour = np.eye(len(self._maps[key])) + strength * (self._maps[key] - np.eye(len(self._maps[key])))
-        return apply_coordination(output, colour, cols, self.lag, self.taps)
+    def apply(self, output: np.ndarray, colour: np.ndarray, cols: np.ndarray, context: ShapeContext) -> np.ndarray:
+        strength = self.evidence(output, context.reference)
+        blended = np.eye(len(colour)) + strength * (colour - np.eye(len(colour)))
+        return apply_coordination(output, blended, cols, self.lag, self.taps)
 
 
 @output_shapers.register("moments_gated")
@@ -74,13 +80,9 @@ class MomentsGated(Moments):
 
     def __init__(self, floor: float = 0.25, share: float = 0.99) -> None:
         super().__init__(floor)
-        self.share = share
-        self._bases: dict[int, np.ndarray] = {}
+        self.evidence = Evidence(share)
 
     def __call__(self, output: np.ndarray, context: ShapeContext) -> np.ndarray:
         shaped = super().__call__(output, context)
-        key = hash(context.reference.tobytes())
-        if key not in self._bases:
-            self._bases[key] = leading_basis(context.reference, self.share)
-        strength = evidence(output, self._bases[key])
+        strength = self.evidence(output, context.reference)
         return (output + strength * (shaped - output)).astype(np.float32)

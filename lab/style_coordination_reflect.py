@@ -15,7 +15,7 @@ import numpy as np
 
 from lab.coordination_maps import MapShaper
 from motionaug.augment.methods.hooks import ShapeContext, output_shapers
-from motionaug.augment.methods.shapers import _covariance, _power, position_channels
+from motionaug.augment.methods.shapers import _covariance, _power
 from motionaug.augment.motion.travel import opposed
 
 
@@ -38,17 +38,11 @@ class CoordinationReflect(MapShaper):
         )
         return _power(e, 0.5, self.floor) @ _power(r, -0.5, self.floor)
 
-    def __call__(self, output: np.ndarray, context: ShapeContext) -> np.ndarray:
-        if context.reference is None:
-            raise ValueError("coordination_reflect needs the example's reference")
+    def apply(self, output: np.ndarray, colour: np.ndarray, cols: np.ndarray, context: ShapeContext) -> np.ndarray:
         back = opposed(context.content, context.example, context.fps)
         clip = output[::-1].copy() if back else output
-        cols = position_channels()
-        key = hash((context.example.tobytes(), context.reference.tobytes()))
-        if key not in self._maps:
-            self._maps[key] = self.build(context.example, context.reference, cols)
         x = reflected_delays(np.asarray(clip[:, cols], np.float64), self.lag, self.taps)
         mean = x.mean(0)
         out = clip.copy()
-        out[:, cols] = (mean + (x - mean) @ self._maps[key].T)[:, : len(cols)].astype(np.float32)
+        out[:, cols] = (mean + (x - mean) @ colour.T)[:, : len(cols)].astype(np.float32)
         return out[::-1].copy() if back else out
