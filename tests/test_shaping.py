@@ -25,9 +25,19 @@ def motion(speed: float, seed: int, frames: int = 60) -> np.ndarray:
     return m
 
 
+def swaying(speed: float, seed: int) -> np.ndarray:
+    """A clip whose root moves back and forth at ``speed`` m/s, a step's time each way: a squat or a dance on the
+    spot."""
+    m = motion(speed, seed)
+    m[:, 2] *= np.where(np.arange(len(m)) // 10 % 2 == 0, 1.0, -1.0)
+    return m
+
+
 def test_a_clip_that_travels_is_told_apart_from_one_that_stays_in_place() -> None:
     assert travels(motion(1.2, 0), FPS) and travels(motion(2.9, 1), FPS)  # a walk, a run
-    assert not travels(motion(0.02, 2), FPS) and not travels(motion(0.1, 3), FPS)  # a wave, a shuffle on the spot
+    assert travels(motion(0.2, 2), FPS)  # an old person's walk
+    assert not travels(motion(0.02, 3), FPS) and not travels(motion(0.05, 4), FPS)  # a wave, a shuffle on the spot
+    assert not travels(swaying(0.3, 5), FPS) and not travels(swaying(1.0, 6), FPS)  # fast, but going nowhere
 
 
 def test_a_clip_travelling_the_other_way_from_the_example_is_told_apart() -> None:
@@ -37,7 +47,8 @@ def test_a_clip_travelling_the_other_way_from_the_example_is_told_apart() -> Non
     assert opposed(backward, motion(1.2, 0), FPS) and opposed(motion(1.2, 0), backward, FPS)
     assert not opposed(motion(1.3, 6), motion(1.2, 0), FPS)  # both forwards
     assert not opposed(sideways, backward, FPS)  # a sidestep goes neither way
-    assert not opposed(motion(-0.1, 7), motion(1.2, 0), FPS)  # a shuffle on the spot does not travel
+    assert not opposed(motion(-0.05, 7), motion(1.2, 0), FPS)  # a shuffle on the spot does not travel
+    assert opposed(motion(-0.2, 8), motion(1.2, 0), FPS)  # a slow walk backwards does
 
 
 def test_a_clip_gets_an_example_that_moves_as_it_does_picked_by_its_id() -> None:

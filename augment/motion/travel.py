@@ -11,7 +11,7 @@ import numpy as np
 from motionaug.augment.motion.features import feature_slices
 from motionaug.schemas.skeleton import T2M
 
-TRAVEL_SPEED = 0.3  # m/s of mean ground speed: below a slow walk, above shifting weight on the spot
+TRAVEL_SPEED = 0.1  # m/s net: under a slow style's walk (0.16 and up), over squatting, kicking or swaying on the spot
 AXIAL = 0.5  # the least share of the mean velocity along the facing axis for a clip to go forwards or backwards
 
 
@@ -21,9 +21,11 @@ def _ground_velocity(motion: np.ndarray) -> np.ndarray:
 
 
 def travels(motion: np.ndarray, fps: float) -> bool:
-    """Whether a clip goes somewhere (a walk, a run) rather than staying in place (a wave): its mean ground speed
-    against ``TRAVEL_SPEED``."""
-    return bool(np.linalg.norm(_ground_velocity(motion), axis=1).mean() * fps > TRAVEL_SPEED)
+    """Whether a clip goes somewhere (a walk, a run) rather than staying in place (a wave): its net ground speed,
+    the magnitude of its mean velocity in the facing frame, against ``TRAVEL_SPEED``. Net, not the mean speed: a
+    squat, a kick or a dance on the spot moves the root back and forth as fast as an old person's walk moves it
+    forwards, but goes nowhere."""
+    return bool(np.linalg.norm(_ground_velocity(motion).mean(axis=0)) * fps > TRAVEL_SPEED)
 
 
 def heading(motion: np.ndarray) -> float:
