@@ -74,6 +74,7 @@ class Plan(_Record):
     rejects: int = 0
     pool: list[str] = Field(default_factory=list, description="Content clip ids a method's prepare learns from.")
     pool_files: list[str] = Field(default_factory=list, description="Source files of the pool's clips.")
+    in_place: int | None = Field(default=None, description="Chosen clips that stay in place (None: not counted).")
 
 
 class ArtifactMarker(_Record):

@@ -170,6 +170,7 @@ def test_submit_runs_on_two_nodes_and_a_second_submit_is_refused(cluster: str, c
     assert f"{TOTAL_SHARDS}/{TOTAL_SHARDS}" in status.output
     logs = CliRunner().invoke(app, ["logs", job_id, "--address", cluster])
     assert logs.exit_code == 0 and f"rows {TOTAL_ROWS}" in logs.output, logs.output[-2000:]
+    assert "warning style 'old':" in logs.output  # its one example, a punch, stays in place; walks travel
     followed = CliRunner().invoke(app, ["logs", job_id, "--address", cluster, "--follow"])
     assert followed.exit_code == 0 and f"rows {TOTAL_ROWS}" in followed.output, followed.output[-2000:]
     after = CliRunner().invoke(app, ["submit", str(cfg), "--address", cluster, "--retry"])

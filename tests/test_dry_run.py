@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 from motionaug.augment.outputs.run_dir import RunDir
 from motionaug.schemas.run_config import load_run_config
 from motionaug.workflows.cli import app
-from motionaug.workflows.dry_run import free_space, plan_run
+from motionaug.workflows.dry_run import dry_run_report, free_space, plan_run
 from motionaug.workflows.executor import LocalBackend, run_pipeline
 
 N_CLIPS = 40
@@ -91,3 +91,27 @@ def test_a_method_without_a_benchmark_rate_says_not_measured(corpus: Path, tmp_p
 def test_free_space_is_read_on_the_nearest_existing_folder(tmp_path: Path) -> None:
     where, free = free_space(tmp_path / "a" / "b" / "c")
     assert where == tmp_path.resolve() and free > 0
+
+
+def test_a_style_whose_examples_all_move_one_way_is_named(corpus: Path, tmp_path: Path) -> None:
+    """A style whose examples all travel (a run) while some clips stay in place gets one warning line, and one whose
+    examples all stay in place (a wave) another; one example of each kind silences both."""
+    data = config_dict(corpus, tmp_path / "run")
+    data["styles"][0]["examples"] = [{"source": "000035", "description": "a person runs proudly"}]
+    data["styles"][1]["examples"] = [{"source": "000009", "description": "a person waves like an old person"}]
+    dry = plan_run(load_run_config(None, data=data))
+    in_place = dry.plan.in_place
+    assert in_place is not None and 0 < in_place < dry.clips
+    assert dry.notes == [
+        f"style 'proud': {in_place:,} of the run's {dry.clips:,} clips stay in place and none of its examples does;"
+        " they take the change an example of another kind of motion shows, which carries the style far less: add an"
+        " example that stays in place, with its reference (docs/methods.md)",
+        f"style 'old': {dry.clips - in_place:,} of the run's {dry.clips:,} clips travel and none of its examples"
+        " does; they take the change an example of another kind of motion shows, which carries the style far less:"
+        " add an example that travels, with its reference (docs/methods.md)",
+    ]
+    printed = [line for line in dry_run_report(dry) if isinstance(line, str) and "warning" in line]
+    assert len(printed) == 2 and "'proud'" in printed[0] and "'old'" in printed[1]
+    for style, other in zip(data["styles"], ("000009", "000035")):
+        style["examples"].append({"source": other, "description": style["examples"][0]["description"]})
+    assert plan_run(load_run_config(None, data=data)).notes == []

@@ -28,6 +28,7 @@ from motionaug.augment.outputs.checksums import sha256_file
 from motionaug.schemas.run_config import RunConfig, load_run_config
 from motionaug.schemas.shards import Manifest
 from motionaug.workflows.cli import app
+from motionaug.workflows.dry_run import plan_run
 
 REPO = Path(__file__).resolve().parents[1]
 N_CLIPS = 40
@@ -103,6 +104,9 @@ def test_end_to_end_shards_manifest_and_success(finished_run) -> None:
     assert len(row["motion"]) == row["n_frames"] * row["n_feats"] and row["n_feats"] == 263
     assert row["captions"] and all(t.count("/") == 1 for c in row["captions"] for t in c["tokens"])
     assert json.loads((run / "config.resolved.json").read_text())["run_id"] == config.run_id()
+    # the sidestep example travels and the punch stays in place, so each style misses one kind of the clips
+    assert [note.split(":")[0] for note in summary.notes] == ["style 'proud'", "style 'old'"]
+    assert summary.notes == plan_run(config).notes
 
 
 def test_rerun_skips_everything_and_keeps_rows(finished_run) -> None:

@@ -473,6 +473,8 @@ def _print_run_summary(summary: RunSummary) -> None:
         f"rows {m.rows}, rejects {m.rejects}, {summary.clips_per_second:.1f} clips/s over {summary.seconds:.1f} s; "
         f"shards in {summary.run_dir / 'shards'}, manifest {summary.run_dir / 'manifest.json'}"
     )
+    for note in summary.notes:
+        err_console.print(f"[yellow]warning[/yellow] {note}", highlight=False)
 
 
 def _load_config(path: Path, overrides: list[str], address: str | None, out: Path | None) -> RunConfig:

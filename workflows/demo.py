@@ -1,11 +1,12 @@
 """``motionaug demo``: the embedded default end to end, resumable.
 
-Renders the synthetic corpus (once), learns three styles from one example clip each with the product's default
-method, stylizes every neutral clip, and exports the expanded corpus in the HumanML3D layout. The default is
-Style-ERD with its output shapers (the winner of the leave-style-out table, ``bench/RESULTS.md`` section 0). The
-network (Style-ERD's, or on-the-fly's prior) trains once on a copy of the corpus without the demo styles (the
-product's style filter), so that each style is learnt from its example as a user's unseen style is, never from the
-corpus's labelled clips of it. Each step leaves a completion marker, so running the demo again finishes at once.
+Renders the synthetic corpus (once), learns three styles from two example clips each (a walk and a wave, each
+against a plain clip of its content) with the product's default method, stylizes every neutral clip, and exports
+the expanded corpus in the HumanML3D layout. The default is Style-ERD with its output shapers (the winner of the
+leave-style-out table, ``bench/RESULTS.md`` section 0). The network (Style-ERD's, or on-the-fly's prior) trains once
+on a copy of the corpus without the demo styles (the product's style filter), so that each style is learnt from its
+examples as a user's unseen style is, never from the corpus's labelled clips of it. Each step leaves a completion
+marker, so running the demo again finishes at once.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from motionaug.workflows.executor import RunProgress
 from motionaug.workflows.ray_executor import RunSummary, execute_run
 
 DEMO_STYLES = ("proud", "depressed", "old")
+EXAMPLE_CONTENTS = ("walk", "wave")  # each demo style's examples: one clip that travels and one in place
 DEMO_SEED = 0
 DONE = "_SUCCESS"
 DEMO_METHODS = ("erd", "onthefly", "stats")
@@ -89,27 +91,26 @@ def ensure_corpus(root: Path, clips: int, seed: int = DEMO_SEED) -> Path:
 
 
 def demo_styles(corpus: Path) -> list[StyleSpec]:
-    """One example per demo style: the first training walk in that style, described by its own caption."""
+    """Per demo style, its first training clip of each ``EXAMPLE_CONTENTS`` (one that travels, one in place, as
+    docs/methods.md advises), described by its own caption, with the first plain training clip of that content named
+    as its reference."""
     labels = read_labels(corpus)
+
+    def first(style: str, content: str) -> str:
+        for cid, r in sorted(labels.items()):
+            if r["style"] == style and r["content"] == content and r["meta"].get("split") == "train":
+                return cid
+        raise MotionDataError(str(corpus), f"no training {content} in style {style!r} to use as an example")
+
     specs = []
     for style in DEMO_STYLES:
-        clip_id = next(
-            (
-                cid
-                for cid, r in sorted(labels.items())
-                if r["style"] == style and r["content"] == "walk" and r["meta"].get("split") == "train"
-            ),
-            None,
-        )
-        if clip_id is None:
-            raise MotionDataError(str(corpus), f"no training walk in style {style!r} to use as the example")
-        first_line = (corpus / "texts" / f"{clip_id}.txt").read_text(encoding="utf-8").splitlines()[0]
-        description = parse_caption_line(first_line, clip_id).text
-        specs.append(
-            StyleSpec(
-                name=style, words=STYLE_WORDS[style], examples=[StyleExample(source=clip_id, description=description)]
-            )
-        )
+        examples = []
+        for content in EXAMPLE_CONTENTS:
+            clip_id = first(style, content)
+            first_line = (corpus / "texts" / f"{clip_id}.txt").read_text(encoding="utf-8").splitlines()[0]
+            description = parse_caption_line(first_line, clip_id).text
+            examples.append(StyleExample(source=clip_id, description=description, reference=first("neutral", content)))
+        specs.append(StyleSpec(name=style, words=STYLE_WORDS[style], examples=examples))
     return specs
 
 

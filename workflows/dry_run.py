@@ -16,10 +16,9 @@ from pathlib import Path
 
 from rich.table import Table
 
-from motionaug.augment.corpus import Corpus
 from motionaug.schemas.run_config import RunConfig
 from motionaug.schemas.shards import Plan
-from motionaug.workflows.pipeline import PlanStage, check_config, keep_clip, over_limit, trained_dir
+from motionaug.workflows.pipeline import PlanStage, check_config, example_coverage, select_clips, trained_dir
 from motionaug.workflows.progress_log import format_seconds
 
 # Shard bytes per output frame (Parquet + zstd, 263-dim float32 rows with captions and scores): zstd does better the
@@ -56,6 +55,7 @@ class DryRun:
     free_bytes: int = 0
     disk_at: Path = Path(".")
     artefacts_measured: bool = True
+    notes: list[str] = field(default_factory=list)
 
     @property
     def seconds(self) -> float | None:
@@ -92,19 +92,11 @@ def plan_run(config: RunConfig) -> DryRun:
     method = check_config(config)
     rate = method.cost_rates
     started = time.perf_counter()
-    corpus = Corpus(config.corpus.path, split=config.corpus.split)
-    file_splits = corpus.file_splits()
-    chosen: list[tuple[str, str, str | None]] = []
-    frames: dict[str, int] = {}
-    all_ids: set[str] = set()
-    for clip, file_key in corpus.with_files():  # streamed, as in PlanStage.run
-        all_ids.add(clip.id)
-        if over_limit(clip, config) is None and keep_clip(clip, config):
-            chosen.append((clip.id, file_key, Corpus.split_of(clip, file_splits)))
-            frames[clip.id] = clip.n_frames
+    selection = select_clips(config)  # as PlanStage.run reads it
     stage = PlanStage(config, method)
-    stage._check_example_ids(all_ids)
-    plan = stage._units(sorted(chosen), len(corpus.rejects))
+    stage._check_example_ids(selection.all_ids)
+    plan = stage._units(selection, len(selection.unreadable))
+    frames = selection.frames
     plan_seconds = time.perf_counter() - started
 
     slots = task_slots(config, config.compute.transfer_cpus)
@@ -148,6 +140,7 @@ def plan_run(config: RunConfig) -> DryRun:
         free_bytes=free,
         disk_at=disk_at,
         artefacts_measured=rate.artefact_bytes is not None,
+        notes=example_coverage(config, plan),
     )
 
 
@@ -183,4 +176,5 @@ def dry_run_report(d: DryRun) -> list[Table | str]:
     what = "shards, plan" if d.artefacts_measured else "shards, plan; style artefacts not measured for this method"
     lines.append(f"disk: needs {_size(d.disk_bytes)} ({what}); {_size(d.free_bytes)} free at {d.disk_at}: {verdict}")
     lines.append(f"estimated time {_time(d.seconds)} (the method's measured rates, 2 cores), output {d.output}")
+    lines.extend(f"[yellow]warning[/yellow] {note}" for note in d.notes)
     return lines

@@ -34,6 +34,7 @@ from motionaug.augment.methods.hooks import output_shapers
 from motionaug.augment.methods.registry import create_method, method_class
 from motionaug.augment.methods.shaping import ShapedModel, read_shaping, write_shaping
 from motionaug.augment.methods.shaping import pool_size as shaping_pool_size
+from motionaug.augment.motion.travel import travels
 from motionaug.augment.outputs.checksums import sha256_file, sha256_tree
 from motionaug.augment.outputs.run_dir import RunDir
 from motionaug.augment.outputs.shards import TransferOutput, output_row, publish_dir, write_shard
@@ -245,6 +246,59 @@ def named_references(style: StyleSpec, config: RunConfig) -> list[MotionClip | N
     return found
 
 
+@dataclass
+class Selection:
+    """What the plan reads of the corpus in one pass: the chosen clips as (id, file, split), every readable id, the
+    unreadable and the over-long clips, the chosen clips' frame counts and how many of them stay in place."""
+
+    chosen: list[tuple[str, str, str | None]]
+    all_ids: set[str]
+    unreadable: list[Reject]
+    too_long: list[Reject]
+    frames: dict[str, int]
+    in_place: int
+
+
+def select_clips(config: RunConfig) -> Selection:
+    """Stream the run's corpus split once through the clip limit and the filters (the plan stage and the dry run)."""
+    corpus = Corpus(config.corpus.path, split=config.corpus.split)
+    file_splits = corpus.file_splits()
+    selection = Selection([], set(), [], [], {}, 0)
+    for clip, file_key in corpus.with_files():
+        selection.all_ids.add(clip.id)
+        if (reject := over_limit(clip, config)) is not None:
+            selection.too_long.append(reject)
+        elif keep_clip(clip, config):
+            selection.chosen.append((clip.id, file_key, Corpus.split_of(clip, file_splits)))
+            selection.frames[clip.id] = clip.n_frames
+            selection.in_place += not travels(clip.motion, clip.fps)
+    selection.unreadable = corpus.rejects
+    return selection
+
+
+def example_coverage(config: RunConfig, plan: Plan) -> list[str]:
+    """A line for each style none of whose examples moves as some of the run's clips do (travelling or in place:
+    ``travel.travels``): those clips are transferred and shaped with an example of the other kind, which carries a
+    style far less (docs/methods.md), so the user learns it from the run rather than from the outputs."""
+    if plan.in_place is None:
+        return []
+    kinds = (
+        (False, plan.in_place, "stay in place", "stays in place"),
+        (True, plan.n_clips - plan.in_place, "travel", "travels"),
+    )
+    notes = []
+    for style in config.styles:
+        shown = {travels(e.motion, e.fps) for e in load_examples(style, config)}
+        for travelling, n, do, does in kinds:
+            if n and travelling not in shown:
+                notes.append(
+                    f"style {style.name!r}: {n:,} of the run's {plan.n_clips:,} clips {do} and none of its examples"
+                    f" does; they take the change an example of another kind of motion shows, which carries the style"
+                    f" far less: add an example that {does}, with its reference (docs/methods.md)"
+                )
+    return notes
+
+
 # ---- the stage contract ---------------------------------------------------------------------------------
 
 
@@ -307,23 +361,13 @@ class PlanStage(Stage):
         return plan if same and plan.unit_size == self.config.compute.unit_size else None
 
     def run(self, key: Hashable, dependency: Any = None) -> Plan:
-        corpus = Corpus(self.config.corpus.path, split=self.config.corpus.split)
-        file_splits = corpus.file_splits()
-        chosen: list[tuple[str, str, str | None]] = []  # (id, file, split)
-        all_ids: set[str] = set()
-        too_long: list[Reject] = []
-        for clip, file_key in corpus.with_files():
-            all_ids.add(clip.id)
-            if (reject := over_limit(clip, self.config)) is not None:
-                too_long.append(reject)
-            elif keep_clip(clip, self.config):
-                chosen.append((clip.id, file_key, Corpus.split_of(clip, file_splits)))
-        self._check_example_ids(all_ids)
-        rejects = corpus.rejects + too_long
+        selection = select_clips(self.config)
+        self._check_example_ids(selection.all_ids)
+        rejects = selection.unreadable + selection.too_long
         write_rejects(rejects, self.run_dir.rejects_dir / CORPUS_REJECTS)
-        if not chosen and not self.config.allow_empty:
-            raise empty_selection(self.config, len(all_ids) - len(too_long), rejects)
-        return self._units(sorted(chosen), len(rejects))
+        if not selection.chosen and not self.config.allow_empty:
+            raise empty_selection(self.config, len(selection.all_ids) - len(selection.too_long), rejects)
+        return self._units(selection, len(rejects))
 
     def _check_example_ids(self, all_ids: set[str]) -> None:
         """Example ids must name corpus clips; outside the run's split (an example from train) they are looked up."""
@@ -348,8 +392,9 @@ class PlanStage(Stage):
         drawn = np.random.default_rng(derive_seed("pool", self.config.seed)).permutation(len(others))
         return sorted(others[int(i)] for i in drawn[: self.pool_size])
 
-    def _units(self, chosen: list[tuple[str, str, str | None]], n_rejects: int) -> Plan:
+    def _units(self, selection: Selection, n_rejects: int) -> Plan:
         config = self.config
+        chosen = sorted(selection.chosen)
         order = np.random.default_rng(derive_seed("plan", config.seed)).permutation(len(chosen))
         size = config.compute.unit_size
         style_names = [s.name for s in config.styles]
@@ -372,6 +417,7 @@ class PlanStage(Stage):
             rejects=n_rejects,
             pool=[m[0] for m in pool],
             pool_files=sorted({m[1] for m in pool}),
+            in_place=selection.in_place,
         )
 
 

@@ -26,7 +26,13 @@ from motionaug.schemas.errors import MotionConfigError, MotionDataError
 from motionaug.schemas.run_config import ComputeConfig, RunConfig, resolve_paths
 from motionaug.schemas.shards import Manifest
 from motionaug.workflows.executor import RunProgress, run_pipeline, run_unit
-from motionaug.workflows.pipeline import Resources, Stage, resolve_method_paths, write_resolved_config
+from motionaug.workflows.pipeline import (
+    Resources,
+    Stage,
+    example_coverage,
+    resolve_method_paths,
+    write_resolved_config,
+)
 from motionaug.workflows.preflight import check_selection, plural, preflight, probe_address, unfit
 
 
@@ -38,6 +44,7 @@ class RunSummary:
     seconds: float
     transferred: int = 0
     skipped: dict[str, int] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
 
     @property
     def clips_per_second(self) -> float:
@@ -377,6 +384,7 @@ def execute_run(
         with ray_session(compute):
             waits = compute.unschedulable_timeout_s if compute.address is not None else 0.0
             result = run_pipeline(config, RayBackend(compute.max_retries, unschedulable_s=waits), progress)
+    plan = RunDir(config.output).read_plan()
     return RunSummary(
         run_dir=config.output,
         run_id=config.run_id(),
@@ -384,4 +392,5 @@ def execute_run(
         seconds=time.perf_counter() - start,
         transferred=result.transferred,
         skipped=result.skipped,
+        notes=example_coverage(config, plan) if plan is not None else [],
     )
