@@ -29,6 +29,7 @@ def test_demo_runs_end_to_end_and_resumes(tmp_path: Path, method: str) -> None:
         neutral = [c for c in HumanML3DReader(first.corpus) if c.style == "neutral" and 40 <= c.n_frames <= 199]
         rows = pq.read_table(run / "shards").num_rows
         assert rows == first.run.manifest.rows == len(neutral) * len(DEMO_STYLES)
+        assert first.run.notes == []  # a walk and a wave per style: every clip has an example of its kind
         assert first.export.stylized > 0 and (method_folder(tmp_path, "expanded", method) / "train.txt").is_file()
         assert set(pq.read_table(run / "shards", columns=["method"]).column("method").to_pylist()) == {method}
         trained_on = {c.style for c in HumanML3DReader(tmp_path / "corpus-without-demo-styles")}
