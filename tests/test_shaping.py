@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from motionaug.augment.corpus.clip import MotionClip
-from motionaug.augment.methods.hooks import output_shapers
+from motionaug.augment.methods.hooks import OutputShaper, ShapeContext, output_shapers
 from motionaug.augment.methods.shaping import example_index, read_shaping, shape, write_shaping
 from motionaug.augment.motion.travel import heading, opposed, travels
 from motionaug.schemas.errors import MotionDataError
@@ -72,6 +72,28 @@ def test_shape_uses_the_in_place_example_for_an_in_place_clip() -> None:
         both = shape(content.motion, content, steps, [walk, wave], [walk_reference, wave_reference])
         alone = shape(content.motion, content, steps, [wave], [wave_reference])
         np.testing.assert_array_equal(both, alone)
+
+
+def test_a_shaper_sees_every_example_alike_the_clip_with_its_reference() -> None:
+    class Seen(OutputShaper):
+        def __init__(self) -> None:
+            self.contexts: list[ShapeContext] = []
+
+        def __call__(self, output: np.ndarray, context: ShapeContext) -> np.ndarray:
+            self.contexts.append(context)
+            return output
+
+    walks, wave = [motion(1.2, 40), motion(1.1, 41)], motion(0.02, 42)
+    references = [motion(1.0, 43), motion(1.0, 44), motion(0.03, 45)]
+    seen = Seen()
+    for speed, expected in ((1.3, [0, 1]), (0.01, [2])):
+        content = MotionClip("clip", motion(speed, 46), [], FPS)
+        shape(content.motion, content, [seen], [*walks, wave], references)
+        alike = seen.contexts[-1].alike
+        assert len(alike) == len(expected)
+        for (example, reference), i in zip(alike, expected):
+            assert example is [*walks, wave][i] and reference is references[i]
+        assert any(example is seen.contexts[-1].example for example, _ in alike)  # the picked one is among them
 
 
 def test_a_named_reference_stands_for_its_example_and_a_bad_one_is_refused(tmp_path) -> None:

@@ -46,12 +46,14 @@ class SamplerStep:
 class ShapeContext:
     """What an output shaper may read beside the output: the content clip, the style example and the plain stand-in
     for the example's content (``reference``, None unless the shaper asked for one), all (T_i, F) in the output's
-    feature space, and the frame rate."""
+    feature space, and the frame rate; ``alike``: every (example, reference) of the style that moves as the content
+    does (``shaping.alike_examples``), the picked one included, for a shaper that pools a style's k examples."""
 
     content: np.ndarray
     example: np.ndarray
     reference: np.ndarray | None
     fps: float
+    alike: tuple[tuple[np.ndarray, np.ndarray | None], ...] = ()
 
 
 @dataclass(frozen=True)

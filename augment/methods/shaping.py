@@ -117,11 +117,16 @@ def read_shaping(folder: Path) -> tuple[list[np.ndarray], list[np.ndarray]]:
     return examples, references
 
 
+def alike_examples(clip_travels: bool, examples_travel: Sequence[bool]) -> list[int]:
+    """The examples that move as the clip does (travelling or in place; all of them where none does)."""
+    return [i for i, t in enumerate(examples_travel) if t == clip_travels] or list(range(len(examples_travel)))
+
+
 def example_index(clip_id: str, clip_travels: bool, examples_travel: Sequence[bool]) -> int:
-    """Which example a clip is transferred and shaped with: of the examples that move as the clip does (travelling
-    or in place; all of them where none does), the one its id picks (batch-independent). Why: a style's change to a
-    walk says little of its change to a wave, so a user who gives one of each gets each where it applies."""
-    alike = [i for i, t in enumerate(examples_travel) if t == clip_travels] or list(range(len(examples_travel)))
+    """Which example a clip is transferred and shaped with: of the examples that move as the clip does
+    (``alike_examples``), the one its id picks (batch-independent). Why: a style's change to a walk says little of
+    its change to a wave, so a user who gives one of each gets each where it applies."""
+    alike = alike_examples(clip_travels, examples_travel)
     return alike[zlib.crc32(clip_id.encode("utf-8")) % len(alike)]
 
 
@@ -134,11 +139,13 @@ def shape(
 ) -> np.ndarray:
     """``output`` through the shapers in order, against the content clip and the example (with its reference) that
     the content's id picks."""
-    picked = example_index(
-        content.id, travels(content.motion, content.fps), [travels(e, content.fps) for e in examples]
-    )
+    clip_travels, examples_travel = travels(content.motion, content.fps), [travels(e, content.fps) for e in examples]
+    picked = example_index(content.id, clip_travels, examples_travel)
     reference = references[picked] if references else None
-    context = ShapeContext(content.motion.astype(np.float32), examples[picked], reference, content.fps)
+    alike = tuple(
+        (examples[i], references[i] if references else None) for i in alike_examples(clip_travels, examples_travel)
+    )
+    context = ShapeContext(content.motion.astype(np.float32), examples[picked], reference, content.fps, alike)
     for shaper in shapers:
         output = shaper(output, context)
     return output
