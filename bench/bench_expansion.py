@@ -70,12 +70,15 @@ from motionaug.augment.eval.expansion import (
     true_stylized,
 )
 from motionaug.augment.eval.protocol import fold_of
+from motionaug.augment.io import atomic_save_npy
 from motionaug.augment.methods.hooks import output_shapers
-from motionaug.augment.methods.shaping import SHAPING_FILE, read_shaping, shape
+from motionaug.augment.methods.shaping import SHAPING_FILE, nearest_root_motion, read_shaping, shape
 from motionaug.augment.motion.features import features_to_joints
 from motionaug.augment.motion.foot_lock import lock_feet
 from motionaug.augment.motion.tempo import retime
+from motionaug.augment.training.data import read_clips, split_ids
 from motionaug.augment.training.pretrain import PretrainConfig, ensure_base_models
+from motionaug.schemas.errors import MotionDataError
 from motionaug.schemas.run_config import load_run_config
 
 REPO = Path(__file__).resolve().parents[1]
@@ -209,6 +212,9 @@ def run_config(args: argparse.Namespace, work: Path, split: StyleSplit, method: 
         }
         for style, ex in split.examples.items()
     ]
+    if args.extra_example:
+        for spec in styles:
+            spec["examples"] = extra_examples(args, work, split, spec["name"], spec["examples"][0])
     base_models: dict[str, Any] = {"path": str(work / "priors" / method_base(args)), "pretrain_if_missing": False}
     # erd and umsd train their network in the run, on a labelled style corpus whose train split holds no held-out clip
     # (under --fold: A itself, which lacks the missing styles too)
@@ -229,6 +235,35 @@ def run_config(args: argparse.Namespace, work: Path, split: StyleSplit, method: 
         "output": str(work / "runs" / method),
         "seed": 0,
     }
+
+
+def extra_examples(
+    args: argparse.Namespace, work: Path, split: StyleSplit, style: str, first: dict[str, str]
+) -> list[dict[str, str]]:
+    """``--extra-example CONTENT``: the style's example plus its first take of CONTENT in C's half (never the
+    judge's), each naming as its reference A's plain train clip of its own content nearest by root motion, as the
+    shipped configs do (bench/RESULTS.md 0, ``B2w``): a clip is then shaped by the example that moves as it does."""
+    base = work / "split" / BASE_DIR
+    plain = [c for c in read_clips(base, split_ids(base, "train")) if c.style == split.neutral]
+    own = {c.id: c for c in true_stylized(work / "split", mode="corpus") if c.style == style}
+    taken = sorted(i for i, c in own.items() if c.content == args.extra_example)
+    if not taken:
+        raise MotionDataError(f"--extra-example {args.extra_example}", f"C's half holds no take of style {style!r}")
+    walk, extra = own[split.examples[style]["id"]], own[taken[0]]
+    path = work / "extra-examples" / f"{extra.id}.npy"
+    if not path.is_file():
+        atomic_save_npy(path, extra.motion)
+    words = style_words(args)[style]
+    texts = [description({"description": cap.text}, words) for cap in extra.captions]
+    second = {
+        "source": str(path),
+        "description": next((t for t, c in zip(texts, extra.captions) if t == c.text), texts[0]),
+    }
+    examples = [dict(first), second]
+    for example, clip in zip(examples, (walk, extra)):
+        alike = {c.id: c.motion for c in plain if c.content == clip.content}
+        example["reference"] = nearest_root_motion(clip.motion, alike)[0]
+    return examples
 
 
 def method_section(args: argparse.Namespace, label: str) -> dict[str, Any]:
@@ -565,6 +600,12 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--method-base", choices=("own", "A"), default="own", help="the methods' base models")
     parser.add_argument("--params", default="{}", help='JSON: per-method params, e.g. {"onthefly": {"epochs": 1}}')
+    parser.add_argument(
+        "--extra-example",
+        default=None,
+        help="each missing style also learns from its first take of this content in C's half; every example names "
+        "its content's plain A clip as its reference (the shipped configs' advice)",
+    )
     parser.add_argument("--plots", type=Path, default=None, help="write PNG plots here")
     args = parser.parse_args()
     args.prior_seeds = [int(s) for s in args.prior_seeds.split(",")]
