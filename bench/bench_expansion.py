@@ -212,9 +212,10 @@ def run_config(args: argparse.Namespace, work: Path, split: StyleSplit, method: 
         }
         for style, ex in split.examples.items()
     ]
-    if args.extra_example:
+    extra = dict(pair.split(":", 1) for pair in args.extra_example.split(",") if pair).get(method)
+    if extra:
         for spec in styles:
-            spec["examples"] = extra_examples(args, work, split, spec["name"], spec["examples"][0])
+            spec["examples"] = extra_examples(args, work, split, spec["name"], spec["examples"][0], extra)
     base_models: dict[str, Any] = {"path": str(work / "priors" / method_base(args)), "pretrain_if_missing": False}
     # erd and umsd train their network in the run, on a labelled style corpus whose train split holds no held-out clip
     # (under --fold: A itself, which lacks the missing styles too)
@@ -238,17 +239,17 @@ def run_config(args: argparse.Namespace, work: Path, split: StyleSplit, method: 
 
 
 def extra_examples(
-    args: argparse.Namespace, work: Path, split: StyleSplit, style: str, first: dict[str, str]
+    args: argparse.Namespace, work: Path, split: StyleSplit, style: str, first: dict[str, str], content: str
 ) -> list[dict[str, str]]:
-    """``--extra-example CONTENT``: the style's example plus its first take of CONTENT in C's half (never the
+    """``--extra-example LABEL:CONTENT``: the style's example plus its first take of CONTENT in C's half (never the
     judge's), each naming as its reference A's plain train clip of its own content nearest by root motion, as the
     shipped configs do (bench/RESULTS.md 0, ``B2w``): a clip is then shaped by the example that moves as it does."""
     base = work / "split" / BASE_DIR
     plain = [c for c in read_clips(base, split_ids(base, "train")) if c.style == split.neutral]
     own = {c.id: c for c in true_stylized(work / "split", mode="corpus") if c.style == style}
-    taken = sorted(i for i, c in own.items() if c.content == args.extra_example)
+    taken = sorted(i for i, c in own.items() if c.content == content)
     if not taken:
-        raise MotionDataError(f"--extra-example {args.extra_example}", f"C's half holds no take of style {style!r}")
+        raise MotionDataError(f"--extra-example {content}", f"C's half holds no take of style {style!r}")
     walk, extra = own[split.examples[style]["id"]], own[taken[0]]
     path = work / "extra-examples" / f"{extra.id}.npy"
     if not path.is_file():
@@ -602,9 +603,9 @@ def main() -> None:
     parser.add_argument("--params", default="{}", help='JSON: per-method params, e.g. {"onthefly": {"epochs": 1}}')
     parser.add_argument(
         "--extra-example",
-        default=None,
-        help="each missing style also learns from its first take of this content in C's half; every example names "
-        "its content's plain A clip as its reference (the shipped configs' advice)",
+        default="",
+        help="comma-separated LABEL:CONTENT: method LABEL's styles each also learn from their first take of CONTENT "
+        "in C's half, every example naming its content's plain A clip as its reference (the shipped configs' advice)",
     )
     parser.add_argument("--plots", type=Path, default=None, help="write PNG plots here")
     args = parser.parse_args()
