@@ -213,9 +213,12 @@ def run_config(args: argparse.Namespace, work: Path, split: StyleSplit, method: 
         for style, ex in split.examples.items()
     ]
     extra = dict(pair.split(":", 1) for pair in args.extra_example.split(",") if pair).get(method)
-    if extra:
+    if extra:  # read A's train clips and C's half once for every style
+        base = work / "split" / BASE_DIR
+        plain = [c for c in read_clips(base, split_ids(base, "train")) if c.style == split.neutral]
+        added = list(true_stylized(work / "split", mode="corpus"))
         for spec in styles:
-            spec["examples"] = extra_examples(args, work, split, spec["name"], spec["examples"][0], extra)
+            spec["examples"] = extra_examples(args, work, split, spec["name"], spec["examples"][0], extra, plain, added)
     base_models: dict[str, Any] = {"path": str(work / "priors" / method_base(args)), "pretrain_if_missing": False}
     # erd and umsd train their network in the run, on a labelled style corpus whose train split holds no held-out clip
     # (under --fold: A itself, which lacks the missing styles too)
@@ -239,14 +242,19 @@ def run_config(args: argparse.Namespace, work: Path, split: StyleSplit, method: 
 
 
 def extra_examples(
-    args: argparse.Namespace, work: Path, split: StyleSplit, style: str, first: dict[str, str], content: str
+    args: argparse.Namespace,
+    work: Path,
+    split: StyleSplit,
+    style: str,
+    first: dict[str, str],
+    content: str,
+    plain: list[MotionClip],
+    added: list[MotionClip],
 ) -> list[dict[str, str]]:
     """``--extra-example LABEL:CONTENT``: the style's example plus its first take of CONTENT in C's half (never the
     judge's), each naming as its reference A's plain train clip of its own content nearest by root motion, as the
     shipped configs do (bench/RESULTS.md 0, ``B2w``): a clip is then shaped by the example that moves as it does."""
-    base = work / "split" / BASE_DIR
-    plain = [c for c in read_clips(base, split_ids(base, "train")) if c.style == split.neutral]
-    own = {c.id: c for c in true_stylized(work / "split", mode="corpus") if c.style == style}
+    own = {c.id: c for c in added if c.style == style}
     taken = sorted(i for i, c in own.items() if c.content == content)
     if not taken:
         raise MotionDataError(f"--extra-example {content}", f"C's half holds no take of style {style!r}")
