@@ -454,7 +454,7 @@ ROW_ORDER = ("content", "moments", "foot_lock", "tempo", "stats", "onthefly", "e
 
 
 def gather_wide(args: argparse.Namespace) -> None:
-    """One line per row: each figure as ``k1/k3`` for fold 1, then for fold 2 (``-`` where a unit has not run)."""
+    """One line per row: each figure as ``k1/k3`` for fold 1, then for fold 2 (``-`` where a unit or k has not run)."""
     found: dict[str, dict[str, dict[str, Any]]] = defaultdict(dict)
     for path in sorted(RESULTS.glob(f"{args.kind}-fold*-*-{args.split}.json")):
         result = json.loads(path.read_text(encoding="utf-8"))
@@ -480,7 +480,7 @@ def gather_wide(args: argparse.Namespace) -> None:
                 if result is None:
                     folds.append("-")
                     continue
-                values = (fmt.format(summary(result, k)[key] * scale) for k in (1, 3))
+                values = (fmt.format(summary(result, k)[key] * scale) if k in result["k"] else "-" for k in (1, 3))
                 folds.append("/".join("100" if v == "100.0" else v for v in values))
             cells.append("; ".join(folds))
         print(f"| {row} | " + " | ".join(cells) + " |")
