@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from motionaug.augment.methods.hooks import OutputShaper, ShapeContext, output_shapers
-from motionaug.augment.methods.shapers import AMPLITUDE_MOST, with_posture
+from motionaug.augment.methods.shapers import AMPLITUDE_MOST, Moments, with_posture
 from motionaug.augment.motion.features import feature_slices
 from motionaug.schemas.skeleton import T2M
 
@@ -40,15 +40,8 @@ def with_gain(
 
 
 @output_shapers.register("moments_ratio")
-class MomentsRatio(OutputShaper):
+class MomentsRatio(Moments):
     """The example's amplitude as a gain over its reference, then its posture (module doc)."""
-
-    needs_reference = True
-
-    def __init__(self, floor: float = 0.25) -> None:
-        if not 0.0 <= floor <= 1.0:
-            raise ValueError(f"moments_ratio floor {floor} is outside [0, 1]")
-        self.floor = floor
 
     def __call__(self, output: np.ndarray, context: ShapeContext) -> np.ndarray:
         if context.reference is None:
