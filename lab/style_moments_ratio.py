@@ -9,7 +9,8 @@ walk example's amplitude change carry to a wave?
 Why: the product's rule adds the example's variance change to the content's; a walk's arm swing is small, so added to a
 wave it barely changes it, while a style that halves the swing of a walk plausibly halves a wave. The coordination map
 before it is already a gain (whitening-colouring), which the additive rule then undoes channel by channel; ``posture``
-keeps the map's gains. Control: ``bench/bench_lso.py run --row shapers --shapers moments_ratio``.
+keeps the map's gains. Control: ``bench/bench_lso.py run --row shapers --hook-modules lab.style_moments_ratio
+--shapers moments_ratio`` (the step alone on the content clip).
 """
 
 from __future__ import annotations
