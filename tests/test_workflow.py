@@ -8,11 +8,6 @@ from __future__ import annotations
 
 import copy
 import json
-import os
-import signal
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import duckdb
@@ -30,7 +25,6 @@ from motionaug.schemas.shards import Manifest
 from motionaug.workflows.cli import app
 from motionaug.workflows.dry_run import plan_run
 
-REPO = Path(__file__).resolve().parents[1]
 N_CLIPS = 40
 UNIT_SIZE = 4
 STYLES = TWO_STYLES
@@ -117,35 +111,6 @@ def test_rerun_skips_everything_and_keeps_rows(finished_run) -> None:
     summary = execute_run(config)
     assert summary.skipped == {"prepare": 2, "transfer": N_CLIPS // UNIT_SIZE * 2}
     assert shard_rows(config.output) == before
-
-
-@pytest.mark.slow
-def test_resume_after_sigkill_gives_the_uninterrupted_rows(
-    finished_run, ray_cluster: str, corpus: Path, tmp_path: Path
-) -> None:
-    config, _ = finished_run
-    out = tmp_path / "killed"
-    cfg = write_config(tmp_path / "run.yaml", config_dict(corpus, out))
-    cmd = [sys.executable, "-m", "motionaug.workflows.cli", "run", str(cfg), "--address", ray_cluster]
-    env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0"}
-    proc = subprocess.Popen(
-        cmd, cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
-    )
-    total = N_CLIPS // UNIT_SIZE * len(STYLES)
-    deadline = time.monotonic() + 90
-    while not list(out.glob("shards/style=*/*.done")) and time.monotonic() < deadline and proc.poll() is None:
-        time.sleep(0.01)
-    os.killpg(proc.pid, signal.SIGKILL)
-    proc.wait()
-    done_at_kill = len(list(out.glob("shards/style=*/*.done")))
-    assert 0 < done_at_kill < total, f"kill landed at {done_at_kill}/{total} shards"
-    assert not (out / "_SUCCESS").exists()
-    time.sleep(1.0)  # let Ray reap the dead driver's tasks
-    resumed = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=120)
-    assert resumed.returncode == 0, resumed.stderr[-2000:]
-    assert (out / "_SUCCESS").is_file()
-    assert shard_rows(out) == shard_rows(config.output)
-    assert not list(out.rglob("*.tmp"))
 
 
 def test_bad_clip_lands_in_rejects_and_the_rest_is_written(ray_cluster: str, corpus: Path, tmp_path: Path) -> None:
