@@ -429,13 +429,14 @@ def run_command(
     """Fine-tune every style and stylize the corpus into Parquet shards; re-running resumes."""
     from contextlib import nullcontext
 
-    from motionaug.workflows.dashboard import dashboard_session, hold_dashboard
-    from motionaug.workflows.preflight import preflight
-    from motionaug.workflows.progress_log import LineProgress
-    from motionaug.workflows.ray_executor import execute_run
-
     with usage_errors():
         cfg = _load_config(config, overrides or [], address, out)
+        # torch and Ray load only now: a config that fails its schema is answered before their import seconds
+        from motionaug.workflows.dashboard import dashboard_session, hold_dashboard
+        from motionaug.workflows.preflight import preflight
+        from motionaug.workflows.progress_log import LineProgress
+        from motionaug.workflows.ray_executor import execute_run
+
         if dashboard or keep_dashboard:
             cfg = cfg.model_copy(update={"compute": cfg.compute.model_copy(update={"include_dashboard": True})})
         if allow_empty:
@@ -479,18 +480,20 @@ def _print_run_summary(summary: RunSummary) -> None:
 
 def _load_config(path: Path, overrides: list[str], address: str | None, out: Path | None) -> RunConfig:
     from motionaug.schemas.run_config import load_run_config
-    from motionaug.workflows.pipeline import resolve_method_paths
 
     if path.is_dir():
         raise MotionDataError(str(path), "is a folder; give the run config file (YAML or JSON) in it")
     if not path.is_file():
         raise MotionDataError(str(path), "config file not found")
     try:
-        config = resolve_method_paths(load_run_config(path, overrides), path.resolve().parent)
+        config = load_run_config(path, overrides)
     except (ValueError, OSError) as err:
         if isinstance(err, ValidationError):
             raise
         raise MotionDataError(str(path), str(err).splitlines()[0]) from None
+    from motionaug.workflows.pipeline import resolve_method_paths  # the method registry: torch
+
+    config = resolve_method_paths(config, path.resolve().parent)
     updates: dict = {}
     if address is not None:
         updates["compute"] = config.compute.model_copy(update={"address": address})
