@@ -1,10 +1,12 @@
-"""Every user-facing error of docs/errors.md, fed through the real ``motionaug`` command (a subprocess, so exit codes
-and tracebacks are what a user sees): one ``error:`` line naming the thing and the reason, no traceback, the
+"""Every user-facing error of docs/errors.md, fed through the real ``motionaug`` command (its own process, so exit
+codes and tracebacks are what a user sees): one ``error:`` line naming the thing and the reason, no traceback, the
 documented exit code, and nothing that existed before changed or lost.
 
-Cases that fail before Ray starts run four at a time; two need a Ray run (a corrupt-clip corpus whose bad clips
-become rejects while the run goes on, then reads of its damaged shard; a style example that is not in the corpus,
-raised inside a task). Read-only and full disks are small tmpfs mounts (the machines run as root).
+Cases that fail before Ray starts run four at a time, each in a forked child of a process that imported the CLI
+once (tests/cli_zygote.py: the console script's entry point, its exit code and its lines); two need a Ray run (a
+corrupt-clip corpus whose bad clips become rejects while the run goes on, then reads of its damaged shard; a style
+example that is not in the corpus, raised inside a task). Read-only and full disks are small tmpfs mounts (the
+machines run as root).
 """
 
 from __future__ import annotations
@@ -15,8 +17,11 @@ import io
 import json
 import os
 import re
+import select
+import signal
 import subprocess
 import sys
+import tempfile
 import threading
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -310,10 +315,54 @@ def _snapshot(root: Path) -> dict[str, str]:
     }
 
 
-def _run_all(root: Path, cases: list[Case]) -> dict[str, subprocess.CompletedProcess]:
-    with ThreadPoolExecutor(max_workers=4) as pool:
-        done = pool.map(lambda case: _motionaug(root, *case.args), cases)
-        return dict(zip((case.id for case in cases), done))
+class Zygote:
+    """tests/cli_zygote.py: runs command lines in forked children of one process that imported the CLI once."""
+
+    def __init__(self, scratch: Path) -> None:
+        env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0", "COLUMNS": "200", "NO_COLOR": "1"}
+        self.scratch = scratch
+        self.process = subprocess.Popen(
+            [sys.executable, str(REPO / "tests" / "cli_zygote.py")],
+            env=env,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+            start_new_session=True,
+        )
+
+    def run(self, root: Path, case: Case, timeout: float = 300) -> subprocess.CompletedProcess:
+        args = [arg.format(not_ray=NOT_RAY[0]) if arg == "{not_ray}" else arg for arg in case.args]
+        out, err = self.scratch / f"{case.id}.out", self.scratch / f"{case.id}.err"
+        assert self.process.stdin is not None and self.process.stdout is not None
+        request = {"args": args, "cwd": str(root), "stdout": str(out), "stderr": str(err)}
+        self.process.stdin.write(json.dumps(request) + "\n")
+        self.process.stdin.flush()
+        ready, _, _ = select.select([self.process.stdout], [], [], timeout)
+        if not ready:
+            self.close()
+            raise TimeoutError(f"{case.id}: no answer in {timeout:.0f} s")
+        code = int(self.process.stdout.readline())
+        return subprocess.CompletedProcess(args, code, out.read_text(), err.read_text())
+
+    def close(self) -> None:
+        if self.process.poll() is None:
+            os.killpg(self.process.pid, signal.SIGKILL)
+        self.process.wait()
+
+
+def _run_all(root: Path, cases: list[Case], workers: int = 4) -> dict[str, subprocess.CompletedProcess]:
+    """Every case's command through ``workers`` zygotes (their answers outside ``root``, whose files are checked)."""
+    with tempfile.TemporaryDirectory(prefix="catalogue-") as scratch:
+        zygotes = [Zygote(Path(scratch)) for _ in range(workers)]
+        try:
+            with ThreadPoolExecutor(max_workers=workers) as pool:
+                chunks = pool.map(
+                    lambda i: [(c.id, zygotes[i].run(root, c)) for c in cases[i::workers]], range(workers)
+                )
+                return dict(pair for chunk in chunks for pair in chunk)
+        finally:
+            for zygote in zygotes:
+                zygote.close()
 
 
 def _check(case: Case, result: subprocess.CompletedProcess) -> None:

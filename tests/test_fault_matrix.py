@@ -33,14 +33,12 @@ def load_bench() -> ModuleType:
 
 faults = load_bench()
 
-# One kill per stage that writes units (prepare, transfer), on the stats method: the kill and resume logic is the
-# executor's, the same for every method. The rest of the matrix (on-the-fly's training and fine-tunes, other stages,
-# damaged files, a full disk) runs in bench/bench_faults.py.
+# The cases no other suite test covers: a driver killed mid-stage (the resume logic is the executor's, the same for
+# every stage and method), a damaged artefact, a verified read and two writers. A worker killed mid-task runs in
+# tests/test_cluster.py and a flipped shard byte in tests/test_export.py; the rest of the matrix (other stages,
+# on-the-fly's training and fine-tunes, other damage, a full disk) runs in bench/bench_faults.py.
 SUITE = [
-    "kill-driver-stats-prepare-mid",
     "kill-driver-stats-transfer-mid",
-    "kill-worker-stats-transfer",
-    "corrupt-shard",
     "corrupt-artefact",
     "verified-read",
     "concurrent-runs",
