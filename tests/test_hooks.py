@@ -81,9 +81,7 @@ def test_specs_and_unknown_modules_are_one_line() -> None:
         output_shapers.register("test-content")(type("Other", (OutputShaper,), {"__call__": lambda s, o, c: o}))
 
 
-def test_a_shaper_defined_in_a_test_module_runs_in_the_ray_workers(tmp_path: Path) -> None:
-    import ray
-
+def test_a_shaper_defined_in_a_test_module_runs_in_the_ray_workers(tmp_path: Path, ray_cluster: str) -> None:
     from motionaug.workflows.pipeline import named_references
     from motionaug.workflows.ray_executor import execute_run
 
@@ -91,11 +89,7 @@ def test_a_shaper_defined_in_a_test_module_runs_in_the_ray_workers(tmp_path: Pat
     generate_corpus(corpus, 24, seed=0)
     plain = sorted(c.id for c in Corpus(corpus) if c.style == "neutral")[-1]
     config = run_config(corpus, tmp_path / "run", ["tests.test_hooks"], reference=plain)
-    try:
-        execute_run(config)
-    finally:
-        if ray.is_initialized():
-            ray.shutdown()
+    execute_run(config)  # on the module's local Ray (conftest's ``ray_cluster``), as on a cluster a user keeps
     sources = {c.id: c for c in Corpus(corpus)}
     rows = list(iter_shard_rows(tmp_path / "run"))
     assert rows
@@ -109,10 +103,8 @@ def test_a_shaper_defined_in_a_test_module_runs_in_the_ray_workers(tmp_path: Pat
         named_references(unknown.styles[0], unknown)
 
 
-def test_a_loss_term_defined_in_a_test_module_trains_in_the_ray_workers(tmp_path: Path) -> None:
+def test_a_loss_term_defined_in_a_test_module_trains_in_the_ray_workers(tmp_path: Path, ray_cluster: str) -> None:
     """Style-ERD's training runs in a Ray task: the term named in ``train.loss_terms`` joins its loss there."""
-    import ray
-
     from motionaug.augment.methods.registry import method_class
     from motionaug.workflows.ray_executor import execute_run
 
@@ -122,11 +114,7 @@ def test_a_loss_term_defined_in_a_test_module_trains_in_the_ray_workers(tmp_path
     train = {**smoke["train"], "loss_terms": [{"name": "test-hooks-joints", "weight": 0.5}]}
     method = {"name": "erd", "params": {**smoke, "train": train}}
     config = run_config(corpus, tmp_path / "run", ["tests.test_hooks"], method)
-    try:
-        summary = execute_run(config)
-    finally:
-        if ray.is_initialized():
-            ray.shutdown()
+    summary = execute_run(config)
     record = json.loads((Path(summary.manifest.base_models) / "erd.json").read_text(encoding="utf-8"))
     assert all(row["test-hooks-joints"] > 0 for row in record["history"])
 

@@ -48,17 +48,13 @@ def config_for(name: str, corpus: Path, out: Path, **method: object):
     return load_run_config(None, data=data)
 
 
-def run_on_ray(config):
-    """``motionaug run``'s executor on an embedded Ray, shut down afterwards."""
-    import ray
-
+def run_on_ray(config, cluster: str):
+    """``motionaug run``'s executor on the module's local Ray (``cluster``, conftest's ``ray_cluster``), which it
+    uses as it is, as a run on a cluster a user keeps: one cluster start for every method's run."""
     from motionaug.workflows.ray_executor import execute_run
 
-    try:
-        return execute_run(config)
-    finally:
-        if ray.is_initialized():
-            ray.shutdown()
+    assert cluster
+    return execute_run(config)
 
 
 def test_every_method_declares_the_contract() -> None:
@@ -73,11 +69,11 @@ def test_every_method_declares_the_contract() -> None:
 
 
 @pytest.mark.parametrize("name", known_methods())
-def test_method_runs_train_prepare_transfer_on_ray(name: str, corpus: Path, tmp_path: Path) -> None:
+def test_method_runs_train_prepare_transfer_on_ray(name: str, corpus: Path, tmp_path: Path, ray_cluster: str) -> None:
 
     config = config_for(name, corpus, tmp_path / "run")
     method = check_config(config)
-    summary = run_on_ray(config)
+    summary = run_on_ray(config, ray_cluster)
     run = RunDir(tmp_path / "run")
     plan = run.read_plan()
     assert plan is not None and plan.n_clips > 0
@@ -122,7 +118,9 @@ def test_prepare_checks_its_arguments_once_for_every_method(name: str, corpus: P
         assert sha256_tree(prepared.folder)[1] == len([p for p in prepared.folder.rglob("*") if p.is_file()]) - 1
 
 
-def test_style_erd_learns_a_style_its_network_never_saw_from_the_example_on_ray(corpus: Path, tmp_path: Path) -> None:
+def test_style_erd_learns_a_style_its_network_never_saw_from_the_example_on_ray(
+    corpus: Path, tmp_path: Path, ray_cluster: str
+) -> None:
     """The network trains on the corpus without ``old``; ``old`` gets a branch fitted from its example in the
     prepare task, ``proud`` keeps its trained one, and every clip comes back in both."""
 
@@ -134,7 +132,7 @@ def test_style_erd_learns_a_style_its_network_never_saw_from_the_example_on_ray(
     config = config_for("erd", corpus, tmp_path / "run")
     config = config.model_copy(update={"base_models": config.base_models.model_copy(update={"corpus": without_old})})
     check_config(config)
-    summary = run_on_ray(config)
+    summary = run_on_ray(config, ray_cluster)
     assert "old" not in read_artifact(summary.manifest.base_models).styles
     run = RunDir(tmp_path / "run")
     folders = {s: run.root / run.artifact(s).path / run.artifact(s).entry for s in ("proud", "old")}
