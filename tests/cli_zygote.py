@@ -1,7 +1,7 @@
 """Runs ``motionaug`` command lines, each in a forked child of this one process, which imported the CLI and torch once.
 
-A fresh ``motionaug`` process spends most of a failing command's seconds importing torch; forty of them would spend
-a minute of the suite on imports. A forked child runs the console script's own entry point (``app()``, as the
+A fresh ``motionaug`` process spends most of a failing command's seconds importing torch, and the error catalogue
+runs dozens of such commands. A forked child runs the console script's own entry point (``app()``, as the
 installed script's ``sys.exit(app())``) with its own working folder, argv, stdout and stderr files and exit status,
 so its exit code, its lines and a traceback are what a user's process gives. Ray is not imported here: the CLI
 imports it itself (an embedded Ray binds 127.0.0.1 only when the CLI imports it).

@@ -8,30 +8,16 @@ folder, which each leaves repaired.
 
 from __future__ import annotations
 
-import importlib.util
 import shutil
-import sys
 from collections.abc import Iterator
 from pathlib import Path
-from types import ModuleType
 
 import pytest
+from conftest import load_bench
 
 from motionaug.augment.synth import generate_corpus
 
-REPO = Path(__file__).resolve().parents[1]
-
-
-def load_bench() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("bench_faults", REPO / "bench" / "bench_faults.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up while the class is made
-    spec.loader.exec_module(module)
-    return module
-
-
-faults = load_bench()
+faults = load_bench("bench_faults")
 
 # The cases no other suite test covers: a driver killed mid-stage (the resume logic is the executor's, the same for
 # every stage and method), a damaged artefact, a verified read and two writers. A worker killed mid-task runs in

@@ -48,12 +48,11 @@ def config_for(name: str, corpus: Path, out: Path, **method: object):
     return load_run_config(None, data=data)
 
 
-def run_on_ray(config, cluster: str):
-    """``motionaug run``'s executor on the module's local Ray (``cluster``, conftest's ``ray_cluster``), which it
-    uses as it is, as a run on a cluster a user keeps: one cluster start for every method's run."""
+def run_on_ray(config):
+    """``motionaug run``'s executor on the Ray this process is connected to: the module's local Ray (its tests ask
+    for conftest's ``ray_cluster``), used as it is, as a cluster a user keeps; one cluster start for every run."""
     from motionaug.workflows.ray_executor import execute_run
 
-    assert cluster
     return execute_run(config)
 
 
@@ -73,7 +72,7 @@ def test_method_runs_train_prepare_transfer_on_ray(name: str, corpus: Path, tmp_
 
     config = config_for(name, corpus, tmp_path / "run")
     method = check_config(config)
-    summary = run_on_ray(config, ray_cluster)
+    summary = run_on_ray(config)
     run = RunDir(tmp_path / "run")
     plan = run.read_plan()
     assert plan is not None and plan.n_clips > 0
@@ -132,7 +131,7 @@ def test_style_erd_learns_a_style_its_network_never_saw_from_the_example_on_ray(
     config = config_for("erd", corpus, tmp_path / "run")
     config = config.model_copy(update={"base_models": config.base_models.model_copy(update={"corpus": without_old})})
     check_config(config)
-    summary = run_on_ray(config, ray_cluster)
+    summary = run_on_ray(config)
     assert "old" not in read_artifact(summary.manifest.base_models).styles
     run = RunDir(tmp_path / "run")
     folders = {s: run.root / run.artifact(s).path / run.artifact(s).entry for s in ("proud", "old")}
