@@ -69,3 +69,29 @@ def test_a_travelling_clip_or_an_in_place_example_is_left_alone() -> None:
     np.testing.assert_array_equal(shaper(wave, ShapeContext(wave, clip(0.02, 3, 0.04), wave, FPS)), wave)
     with pytest.raises(ValueError, match="source"):
         output_shapers.create({"name": "body_rhythm", "source": "nobody"})
+
+
+def test_an_in_place_examples_rhythm_reaches_an_in_place_clip_only_with_that_kind() -> None:
+    wave, example = clip(0.02, 0), clip(0.02, 1, bounce=0.04)
+    context = ShapeContext(wave, example, clip(0.02, 2), FPS)
+    np.testing.assert_array_equal(output_shapers.create("body_rhythm")(wave, context), wave)
+    out = output_shapers.create({"name": "body_rhythm", "example_kind": "in_place"})(wave, context)
+    drop, _ = rhythm(example, len(wave))
+    np.testing.assert_allclose(out[:, SLICES["root_y"]][:, 0] - wave[:, 3], drop, atol=1e-5)
+    walk_example = ShapeContext(wave, clip(1.2, 3, bounce=0.04), wave, FPS)
+    kind = output_shapers.create({"name": "body_rhythm", "example_kind": "in_place"})
+    np.testing.assert_array_equal(kind(wave, walk_example), wave)
+    with pytest.raises(ValueError, match="example_kind"):
+        output_shapers.create({"name": "body_rhythm", "example_kind": "sideways"})
+
+
+def test_the_high_pass_takes_a_takes_slow_drift_out_of_its_rhythm() -> None:
+    example = clip(0.02, 1, bounce=0.04, frames=80)
+    drifting = example.copy()
+    drift = np.linspace(0.0, -0.2, len(example)).astype(np.float32)  # the take sinks 20 cm over its frames
+    drifting[:, 3] += drift
+    looped, _ = rhythm(drifting, 160)
+    assert looped[79] - looped[80] < -0.15  # looped raw, the drift jumps back up where the take starts again
+    steady, _ = rhythm(example, 160, highpass=20)
+    filtered, _ = rhythm(drifting, 160, highpass=20)
+    assert np.abs(np.diff(filtered)).max() < 1.5 * np.abs(np.diff(steady)).max()
