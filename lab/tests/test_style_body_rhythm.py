@@ -95,3 +95,15 @@ def test_the_high_pass_takes_a_takes_slow_drift_out_of_its_rhythm() -> None:
     steady, _ = rhythm(example, 160, highpass=20)
     filtered, _ = rhythm(drifting, 160, highpass=20)
     assert np.abs(np.diff(filtered)).max() < 1.5 * np.abs(np.diff(steady)).max()
+
+
+def test_excess_adds_only_the_body_motion_the_reference_lacks() -> None:
+    wave, bouncing = clip(0.02, 0), clip(0.02, 1, bounce=0.04)
+    excess = output_shapers.create({"name": "body_rhythm", "example_kind": "in_place", "excess": True})
+    np.testing.assert_array_equal(excess(wave, ShapeContext(wave, bouncing, bouncing, FPS)), wave)
+    plain = clip(0.02, 2, bounce=0.02)  # bobs at half the example's amplitude: a quarter of its variance
+    out = excess(wave, ShapeContext(wave, bouncing, plain, FPS))
+    full = output_shapers.create({"name": "body_rhythm", "example_kind": "in_place"})
+    raised = full(wave, ShapeContext(wave, bouncing, plain, FPS))
+    gained, whole = (np.abs(o[:, 3] - wave[:, 3]).max() for o in (out, raised))
+    assert gained == pytest.approx(np.sqrt(0.75) * whole, rel=1e-3)
