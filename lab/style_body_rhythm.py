@@ -13,6 +13,10 @@
   ``excess=true``: each channel scaled by sqrt(1 - its variance in the reference over the example's), so the added
   motion is the part of the example's that its plain reference lacks (none where the style moves the body as plainly).
 
+The product's ``in_place_rhythm`` (``augment/methods/shapers.py``) is this step with ``example_kind=in_place``,
+``highpass_s=1.0`` and ``excess=true``, the setting it won with (lab/NOTES.md 0); the other settings and the
+reference's control stay here, on the product's functions.
+
 Why: on the Bandai-2 train takes a style's standing actions (waves, raises) move the root height, legs and trunk far
 more than the plain ones, where the arms' spread changes less; a plain wave barely moves its body, so no map of its
 positions can give it the style's body motion. A walk example's gait rhythm is the one body motion of the style it
@@ -24,43 +28,8 @@ from __future__ import annotations
 import numpy as np
 
 from motionaug.augment.methods.hooks import OutputShaper, ShapeContext, output_shapers
-from motionaug.augment.motion.features import feature_slices
+from motionaug.augment.methods.shapers import beyond_reference, body_rhythm, with_body_rhythm
 from motionaug.augment.motion.travel import travels
-from motionaug.schemas.skeleton import T2M
-
-TRUNK = (3, 6, 9, 12, 15)  # spine1, spine2, spine3, neck, head
-ARMS = {13: (16, 18, 20), 14: (17, 19, 21)}  # collar -> the arm hanging from it
-COLLARS = (13, 14)
-BELOW_HIPS = (4, 5, 7, 8, 10, 11)  # knees, ankles, feet: they stay where they stand
-
-
-def _highpass(x: np.ndarray, width: int) -> np.ndarray:
-    """``x`` (T, ...) less its centred moving average over ``width`` frames (edges padded): the drift gone."""
-    if width < 2:
-        return x
-    pad = np.concatenate([np.repeat(x[:1], width // 2, 0), x, np.repeat(x[-1:], width - 1 - width // 2, 0)])
-    kernel = np.ones(width) / width
-    smooth = np.apply_along_axis(lambda v: np.convolve(v, kernel, mode="valid"), 0, pad)
-    return x - smooth
-
-
-def rhythm(motion: np.ndarray, frames: int, highpass: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """(frames,) root height drops below its highest and (frames, 22, 3) root-relative joint deviations (trunk and
-    collars only, heights taken over the root's), the clip's frames looped from its start; ``highpass`` > 1: each
-    less its moving average over that many frames first (a take's slow drift would loop as a saw)."""
-    sl = feature_slices(T2M)
-    root_y = motion[:, sl["root_y"]][:, 0].astype(np.float64)
-    ric = motion[:, sl["ric"]].reshape(len(motion), T2M.n_joints - 1, 3).astype(np.float64)
-    joints = np.zeros((len(motion), T2M.n_joints, 3))
-    joints[:, 1:] = ric
-    joints[:, 1:, 1] -= root_y[:, None]  # heights over the root's: the bounce is root_y's alone
-    root_y, joints = _highpass(root_y, highpass), _highpass(joints, highpass)
-    index = np.arange(frames) % len(motion)
-    dy = (root_y - root_y.max())[index]
-    dj = np.zeros((frames, T2M.n_joints, 3))
-    for j in (*TRUNK, *COLLARS):
-        dj[:, j] = (joints[:, j] - joints[:, j].mean(0))[index]
-    return dy, dj
 
 
 @output_shapers.register("body_rhythm")
@@ -90,22 +59,9 @@ class BodyRhythm(OutputShaper):
             raise ValueError("body_rhythm needs the example's reference")
         if travels(context.content, context.fps) or travels(context.example, context.fps) != self.example_travels:
             return output
+        width = round(self.highpass_s * context.fps)
         source = context.example if self.source == "example" else context.reference
-        dy, dj = rhythm(np.asarray(source), len(output), round(self.highpass_s * context.fps))
-        if self.excess:  # only the variance the reference lacks: sqrt(1 - var_ref / var_ex) per channel
-            ry, rj = rhythm(np.asarray(context.reference), len(output), round(self.highpass_s * context.fps))
-            dy = dy * np.sqrt(np.clip(1.0 - ry.var() / max(dy.var(), 1e-12), 0.0, 1.0))
-            dj = dj * np.sqrt(np.clip(1.0 - rj.var(0) / np.maximum(dj.var(0), 1e-12), 0.0, 1.0))
-        sl = feature_slices(T2M)
-        out = output.copy()
-        ric = out[:, sl["ric"]].reshape(len(out), T2M.n_joints - 1, 3).astype(np.float64)
-        for j in (*TRUNK, *COLLARS):
-            ric[:, j - 1] += self.gain * dj[:, j]
-        for collar, arm in ARMS.items():
-            for j in arm:
-                ric[:, j - 1] += self.gain * dj[:, collar]
-        above = [j - 1 for j in range(1, T2M.n_joints) if j not in BELOW_HIPS]
-        ric[:, above, 1] += self.gain * dy[:, None]
-        out[:, sl["ric"]] = ric.reshape(len(out), -1).astype(np.float32)
-        out[:, sl["root_y"]] += (self.gain * dy[:, None]).astype(np.float32)
-        return out
+        drop, sway = body_rhythm(np.asarray(source), len(output), width)
+        if self.excess:
+            drop, sway = beyond_reference(drop, sway, body_rhythm(np.asarray(context.reference), len(output), width))
+        return with_body_rhythm(output, drop, sway, self.gain)

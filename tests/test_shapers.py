@@ -1,4 +1,4 @@
-"""The coordination (also over time lags), bone-length, foot-lock and foot-planting shapers
+"""The coordination (also over time lags), bone-length, foot-lock, foot-planting and in-place rhythm shapers
 (``augment/methods/shapers.py``) on real-shaped features: what each keeps and moves."""
 
 from __future__ import annotations
@@ -8,6 +8,10 @@ import pytest
 
 from motionaug.augment.methods.hooks import ShapeContext, output_shapers
 from motionaug.augment.methods.shapers import (
+    BELOW_HIPS,
+    STYLE_ERD_CHAIN,
+    beyond_reference,
+    body_rhythm,
     coordination_transfer,
     delays,
     position_channels,
@@ -15,7 +19,7 @@ from motionaug.augment.methods.shapers import (
     toe_heights,
     with_bone_lengths,
 )
-from motionaug.augment.motion.features import features_to_joints
+from motionaug.augment.motion.features import feature_slices, features_to_joints
 from motionaug.augment.motion.foot_lock import plant_feet
 from motionaug.augment.synth.animator import sample_spec
 from motionaug.augment.synth.corpus import spec_to_clip
@@ -137,3 +141,65 @@ def test_a_clip_travelling_against_the_example_is_mapped_played_backwards() -> N
     np.testing.assert_allclose(
         shaped(zero_lag, backward), coordination_transfer(backward, example, reference, 0.0, 1e-3), atol=1e-6
     )
+
+
+def bouncing(features: np.ndarray, bounce: float) -> np.ndarray:
+    """``features`` with the root and every joint raised by a ``bounce`` m sine, two bobs a second."""
+    out = features.copy()
+    height = (bounce * np.sin(2 * np.pi * 2.0 * np.arange(len(out)) / 20.0)).astype(np.float32)
+    ric = feature_slices(T2M)["ric"]
+    out[:, 3] += height
+    out[:, ric] = (
+        out[:, ric].reshape(len(out), -1, 3) + np.stack([0 * height, height, 0 * height], -1)[:, None]
+    ).reshape(len(out), -1)
+    return out
+
+
+def test_in_place_rhythm_adds_to_a_standing_clip_the_bounce_its_reference_lacks() -> None:
+    content, plain = clip("neutral", "wave", seed=0), clip("neutral", "wave", seed=1)
+    example = bouncing(plain, 0.04)
+    shaper = output_shapers.create("in_place_rhythm")
+    assert "in_place_rhythm" in STYLE_ERD_CHAIN
+    same = shaper(content, ShapeContext(content, example, example, 20.0))
+    np.testing.assert_allclose(same, content, atol=1e-5)  # channels still to 1e-6 m keep their micrometres
+    out = shaper(content, ShapeContext(content, example, plain, 20.0))
+    width = 20  # highpass_s 1.0 at 20 fps
+    drop, _ = beyond_reference(*body_rhythm(example, len(content), width), body_rhythm(plain, len(content), width))
+    assert drop.min() < -0.06  # the bob's 8 cm, high-passed
+    np.testing.assert_allclose(out[:, 3] - content[:, 3], drop, atol=1e-5)
+    moved = (out - content)[:, feature_slices(T2M)["ric"]].reshape(len(content), -1, 3)
+    for joint in BELOW_HIPS:
+        np.testing.assert_array_equal(moved[:, joint - 1], 0.0)  # the knees are plant_feet's
+    np.testing.assert_allclose(moved[:, 0, 1], drop, atol=1e-5)  # the left hip goes down with the pelvis
+
+
+def test_in_place_rhythm_leaves_a_travelling_clip_or_example_alone() -> None:
+    walk, wave = clip("neutral", seed=0), clip("neutral", "wave", seed=1)
+    shaper = output_shapers.create({"name": "in_place_rhythm", "highpass_s": 0.5})
+    np.testing.assert_array_equal(shaper(walk, ShapeContext(walk, bouncing(wave, 0.04), wave, 20.0)), walk)
+    np.testing.assert_array_equal(shaper(wave, ShapeContext(wave, bouncing(walk, 0.04), walk, 20.0)), wave)
+    with pytest.raises(ValueError, match="highpass_s"):
+        output_shapers.create({"name": "in_place_rhythm", "highpass_s": -1.0})
+    with pytest.raises(ValueError, match="reference"):
+        shaper(wave, ShapeContext(wave, wave, None, 20.0))
+
+
+def test_the_high_pass_takes_a_takes_slow_drift_out_of_its_rhythm() -> None:
+    example = bouncing(clip("neutral", "wave", seed=1), 0.04)[:80]
+    drifting = example.copy()
+    drifting[:, 3] += np.linspace(0.0, -0.2, len(example)).astype(np.float32)  # the take sinks 20 cm
+    looped, _ = body_rhythm(drifting, 160)
+    assert looped[79] - looped[80] < -0.15  # looped raw, the drift jumps back up where the take starts again
+    steady, _ = body_rhythm(example, 160, 20)
+    filtered, _ = body_rhythm(drifting, 160, 20)
+    assert np.abs(np.diff(filtered)).max() < 1.5 * np.abs(np.diff(steady)).max()
+
+
+def test_beyond_reference_keeps_the_share_of_the_variance_the_reference_lacks() -> None:
+    wave = clip("neutral", "wave", seed=1)
+    example, half = body_rhythm(bouncing(wave, 0.04), 100), body_rhythm(bouncing(wave, 0.02), 100)
+    drop, sway = beyond_reference(*example, half)  # half the amplitude: a quarter of the variance
+    ratio = drop.std() / example[0].std()
+    assert ratio == pytest.approx(np.sqrt(1 - half[0].var() / example[0].var()), rel=1e-6) and 0.5 < ratio < 1.0
+    assert np.abs(sway).max() <= np.abs(example[1]).max()
+    np.testing.assert_array_equal(beyond_reference(*example, example)[0], 0.0)

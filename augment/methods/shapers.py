@@ -5,7 +5,9 @@ clip standing in for the example's content performed plainly).
 - ``moments``: the example's posture and amplitude over its reference (AdaIN's moments); ``coordination``: its
   change of joint covariance over its reference (whitening and colouring), over time lags where ``taps`` > 0;
 - ``bone_lengths``: the content's bones back; ``lock_feet``: the root moved so a planted foot stays put;
-  ``plant_feet``: the content's planted toes held still and its swing clearance kept, by moving the legs.
+  ``plant_feet``: the content's planted toes held still and its swing clearance kept, by moving the legs;
+- ``in_place_rhythm``: on a clip that stays in place, an in-place example's body bounce and trunk sway, the part its
+  reference lacks.
 
 Style-ERD's configs chain ``STYLE_ERD_CHAIN``, chosen on the LSO fold 1 val split against each step's control.
 """
@@ -20,7 +22,7 @@ from motionaug.augment.methods.hooks import HookSpec, OutputShaper, ShapeContext
 from motionaug.augment.metrics import foot_contacts_from_features
 from motionaug.augment.motion.features import feature_slices, features_to_joints
 from motionaug.augment.motion.foot_lock import lock_feet, plant_feet
-from motionaug.augment.motion.travel import opposed
+from motionaug.augment.motion.travel import opposed, travels
 from motionaug.schemas.skeleton import T2M
 
 STYLE_ERD_CHAIN: tuple[HookSpec, ...] = (
@@ -28,6 +30,7 @@ STYLE_ERD_CHAIN: tuple[HookSpec, ...] = (
     "moments",
     "bone_lengths",
     "lock_feet",
+    "in_place_rhythm",
     "plant_feet",
 )
 """The output shapers both Style-ERD configs and the demo chain after the network (module doc)."""
@@ -273,3 +276,96 @@ class BoneLengths(OutputShaper):
 
     def __call__(self, output: np.ndarray, context: ShapeContext) -> np.ndarray:
         return with_bone_lengths(output, context.content)
+
+
+TRUNK = (3, 6, 9, 12, 15)  # spine1, spine2, spine3, neck, head
+COLLAR_ARMS = {13: (16, 18, 20), 14: (17, 19, 21)}  # collar -> the arm hanging from it
+BELOW_HIPS = (4, 5, 7, 8, 10, 11)  # knees, ankles, feet: they stay where they stand
+
+
+def highpass(x: np.ndarray, width: int) -> np.ndarray:
+    """``x`` (T, ...) less its centred moving average over ``width`` frames (edges padded): its slow drift gone."""
+    if width < 2:
+        return x
+    pad = np.concatenate([np.repeat(x[:1], width // 2, 0), x, np.repeat(x[-1:], width - 1 - width // 2, 0)])
+    kernel = np.ones(width) / width
+    smooth = np.apply_along_axis(lambda v: np.convolve(v, kernel, mode="valid"), 0, pad)
+    return x - smooth
+
+
+def body_rhythm(motion: np.ndarray, frames: int, width: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(frames,) root height drops below its highest and (frames, 22, 3) root-relative joint deviations from their
+    means (trunk and collars only, heights over the root's), the clip's frames looped from its start; ``width`` > 1:
+    each high-passed over that many frames first (a take's slow drift would loop as a saw)."""
+    sl = feature_slices(T2M)
+    root_y = motion[:, sl["root_y"]][:, 0].astype(np.float64)
+    joints = np.zeros((len(motion), T2M.n_joints, 3))
+    joints[:, 1:] = motion[:, sl["ric"]].reshape(len(motion), T2M.n_joints - 1, 3)
+    joints[:, 1:, 1] -= root_y[:, None]  # heights over the root's: the bounce is root_y's alone
+    root_y, joints = highpass(root_y, width), highpass(joints, width)
+    index = np.arange(frames) % len(motion)
+    drop = (root_y - root_y.max())[index]
+    sway = np.zeros((frames, T2M.n_joints, 3))
+    for j in (*TRUNK, *COLLAR_ARMS):
+        sway[:, j] = (joints[:, j] - joints[:, j].mean(0))[index]
+    return drop, sway
+
+
+def beyond_reference(
+    drop: np.ndarray, sway: np.ndarray, reference: tuple[np.ndarray, np.ndarray]
+) -> tuple[np.ndarray, np.ndarray]:
+    """The example's rhythm with each channel scaled by sqrt(1 - its variance in the reference over the example's):
+    the body motion the plain reference lacks, none where the style moves the body as plainly."""
+    ref_drop, ref_sway = reference
+    drop = drop * np.sqrt(np.clip(1.0 - ref_drop.var() / max(drop.var(), 1e-12), 0.0, 1.0))
+    sway = sway * np.sqrt(np.clip(1.0 - ref_sway.var(0) / np.maximum(sway.var(0), 1e-12), 0.0, 1.0))
+    return drop, sway
+
+
+def with_body_rhythm(output: np.ndarray, drop: np.ndarray, sway: np.ndarray, gain: float = 1.0) -> np.ndarray:
+    """``output`` (T, F) with ``gain`` x a rhythm added: the drop lowers the pelvis and every joint above the knees,
+    a trunk or collar joint's sway carries it and, from a collar, the arm hanging from it."""
+    sl = feature_slices(T2M)
+    out = output.copy()
+    ric = out[:, sl["ric"]].reshape(len(out), T2M.n_joints - 1, 3).astype(np.float64)
+    for j in (*TRUNK, *COLLAR_ARMS):
+        ric[:, j - 1] += gain * sway[:, j]
+    for collar, arm in COLLAR_ARMS.items():
+        for j in arm:
+            ric[:, j - 1] += gain * sway[:, collar]
+    above = [j - 1 for j in range(1, T2M.n_joints) if j not in BELOW_HIPS]
+    ric[:, above, 1] += gain * drop[:, None]
+    out[:, sl["ric"]] = ric.reshape(len(out), -1).astype(np.float32)
+    out[:, sl["root_y"]] += (gain * drop[:, None]).astype(np.float32)
+    return out
+
+
+@output_shapers.register("in_place_rhythm")
+class InPlaceRhythm(OutputShaper):
+    """On a clip that stays in place, shaped by an example that stays in place too (a style's wave for a wave), the
+    example's root height drops and trunk and collar sway that its reference lacks, looped onto the output.
+
+    Why: a style's standing actions move the root height and trunk far more than the plain ones, and a plain wave
+    barely moves its body, so no map of its joint positions (``coordination``, ``moments``) can give it the style's
+    body motion; the example shows it. Each deviation is high-passed over ``highpass_s`` seconds (a take's slow drift
+    would loop as a saw) and scaled by ``beyond_reference`` (the part of the example's motion its reference lacks). The
+    knees are left to ``plant_feet``, the step after it in the chain, which bends them to feet that stay. A travelling
+    clip or example is left alone: a walk's gait rhythm is already the content's own.
+    """
+
+    needs_reference = True
+
+    def __init__(self, highpass_s: float = 1.0) -> None:
+        if highpass_s < 0:
+            raise ValueError(f"in_place_rhythm needs highpass_s >= 0, got {highpass_s}")
+        self.highpass_s = highpass_s
+
+    def __call__(self, output: np.ndarray, context: ShapeContext) -> np.ndarray:
+        if context.reference is None:
+            raise ValueError("the in_place_rhythm shaper needs the example's reference")
+        if travels(context.content, context.fps) or travels(context.example, context.fps):
+            return output
+        width = round(self.highpass_s * context.fps)
+        drop, sway = body_rhythm(np.asarray(context.example), len(output), width)
+        reference = body_rhythm(np.asarray(context.reference), len(output), width)
+        return with_body_rhythm(output, *beyond_reference(drop, sway, reference))

@@ -1,14 +1,17 @@
 """The lab's gain-form moment rule (``lab/style_moments_ratio.py``) and body-rhythm shaper
-(``lab/style_body_rhythm.py``) on arrays: what each keeps and what it moves."""
+(``lab/style_body_rhythm.py``; the functions it shares with the product's ``in_place_rhythm`` are tested in
+``tests/test_shapers.py``) on arrays: what each keeps and what it moves."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+import lab.style_body_rhythm  # noqa: F401  (registers body_rhythm)
 import lab.style_moments_ratio  # noqa: F401  (registers moments_ratio)
-from lab.style_body_rhythm import BELOW_HIPS, rhythm
 from motionaug.augment.methods.hooks import ShapeContext, output_shapers
+from motionaug.augment.methods.shapers import BELOW_HIPS
+from motionaug.augment.methods.shapers import body_rhythm as rhythm
 from motionaug.augment.motion.features import feature_slices
 from motionaug.schemas.skeleton import T2M
 
@@ -83,18 +86,6 @@ def test_an_in_place_examples_rhythm_reaches_an_in_place_clip_only_with_that_kin
     np.testing.assert_array_equal(kind(wave, walk_example), wave)
     with pytest.raises(ValueError, match="example_kind"):
         output_shapers.create({"name": "body_rhythm", "example_kind": "sideways"})
-
-
-def test_the_high_pass_takes_a_takes_slow_drift_out_of_its_rhythm() -> None:
-    example = clip(0.02, 1, bounce=0.04, frames=80)
-    drifting = example.copy()
-    drift = np.linspace(0.0, -0.2, len(example)).astype(np.float32)  # the take sinks 20 cm over its frames
-    drifting[:, 3] += drift
-    looped, _ = rhythm(drifting, 160)
-    assert looped[79] - looped[80] < -0.15  # looped raw, the drift jumps back up where the take starts again
-    steady, _ = rhythm(example, 160, highpass=20)
-    filtered, _ = rhythm(drifting, 160, highpass=20)
-    assert np.abs(np.diff(filtered)).max() < 1.5 * np.abs(np.diff(steady)).max()
 
 
 def test_excess_adds_only_the_body_motion_the_reference_lacks() -> None:
