@@ -1,15 +1,13 @@
 """The output shapers the shipped configs name, registered in ``hooks.output_shapers``: post-processes of a
 transfer's output that read the content and, where they need one, the style example and its reference (the pool
-clip standing in for the example's content performed plainly).
+clip standing in for the example's content performed plainly). Style-ERD's configs chain ``STYLE_ERD_CHAIN``.
 
 - ``moments``: the example's posture and amplitude over its reference (AdaIN's moments); ``coordination``: its
   change of joint covariance over its reference (whitening and colouring), over time lags where ``taps`` > 0;
 - ``bone_lengths``: the content's bones back; ``lock_feet``: the root moved so a planted foot stays put;
   ``plant_feet``: the content's planted toes held still and its swing clearance kept, by moving the legs;
-- ``in_place_rhythm``: on a clip that stays in place, an in-place example's body bounce and trunk sway, the part its
-  reference lacks.
-
-Style-ERD's configs chain ``STYLE_ERD_CHAIN``, chosen on the LSO fold 1 val split against each step's control.
+- ``in_place_rhythm``: an in-place example's body bounce and trunk sway, what its reference lacks, on clips in place.
+Each step was chosen on an LSO fold 1 val split against its control (``bench/RESULTS.md`` 0).
 """
 
 from __future__ import annotations
