@@ -1,4 +1,4 @@
-"""The coordination (also over time lags), bone-length, foot-lock, foot-planting and in-place rhythm shapers
+"""The tempo, coordination (also over time lags), bone-length, foot-lock, foot-planting and in-place rhythm shapers
 (``augment/methods/shapers.py``) on real-shaped features: what each keeps and moves."""
 
 from __future__ import annotations
@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.methods.hooks import ShapeContext, output_shapers
 from motionaug.augment.methods.shapers import (
     BELOW_HIPS,
@@ -14,15 +15,20 @@ from motionaug.augment.methods.shapers import (
     body_rhythm,
     coordination_transfer,
     delays,
+    flight,
     position_channels,
     toe_contacts,
     toe_heights,
     with_bone_lengths,
 )
+from motionaug.augment.methods.shaping import ShapedModel
 from motionaug.augment.motion.features import feature_slices, features_to_joints
 from motionaug.augment.motion.foot_lock import plant_feet
+from motionaug.augment.motion.tempo import cycle_period, retime
+from motionaug.augment.outputs.shards import TransferOutput
 from motionaug.augment.synth.animator import sample_spec
 from motionaug.augment.synth.corpus import spec_to_clip
+from motionaug.schemas.captions import Caption
 from motionaug.schemas.skeleton import T2M
 
 
@@ -203,3 +209,55 @@ def test_beyond_reference_keeps_the_share_of_the_variance_the_reference_lacks() 
     assert ratio == pytest.approx(np.sqrt(1 - half[0].var() / example[0].var()), rel=1e-6) and 0.5 < ratio < 1.0
     assert np.abs(sway).max() <= np.abs(example[1]).max()
     np.testing.assert_array_equal(beyond_reference(*example, example)[0], 0.0)
+
+
+class Unchanged:
+    """A style model that gives each clip back as it came (the output the shapers then shape)."""
+
+    style = "slow"
+
+    def transfer(self, clips, seed: int = 0):
+        return [TransferOutput(c.id, self.style, c.motion.copy(), list(c.captions)) for c in clips]
+
+
+def test_match_tempo_plays_the_output_at_the_examples_rate_and_the_later_steps_on_that_clock() -> None:
+    content, reference = clip("neutral", seed=0), clip("neutral", seed=1)
+    example = retime(reference, 0.5, 400)  # the reference's walk at half its cadence: a style's tempo alone
+    context = ShapeContext(content, example, reference, 20.0)
+    shaper = output_shapers.create("match_tempo")
+    out, after = shaper(content, context), shaper.context_after(context)
+    assert len(out) == min(2 * len(content), max(len(content), 196)) and out.shape[1] == content.shape[1]
+    assert len(after.content) == len(out) and after.example is example
+    assert cycle_period(after.reference, 20.0) == pytest.approx(cycle_period(example, 20.0), rel=0.1)
+    assert cycle_period(out, 20.0) == pytest.approx(2 * cycle_period(content, 20.0), rel=0.1)
+    moved = output_shapers.create("moments")(out, after)  # a later step reads clips of one length
+    assert moved.shape == out.shape and np.isfinite(moved).all()
+    same = ShapeContext(content, reference, reference, 20.0)
+    np.testing.assert_array_equal(shaper(content, same), content)  # the same pace: nothing to retime
+    assert shaper.context_after(same) is same
+
+
+def test_match_tempo_keeps_the_clock_across_kinds_of_motion_and_gaits() -> None:
+    walk, wave, reference = clip("neutral", seed=2), clip("neutral", "wave", seed=3), clip("neutral", seed=4)
+    slow = retime(reference, 0.5, 400)
+    shaper = output_shapers.create("match_tempo")
+    np.testing.assert_array_equal(shaper(wave, ShapeContext(wave, slow, reference, 20.0)), wave)  # a wave, a walk
+    running = reference.copy()
+    running[::2, -4:] = 0.0  # no foot down on every other frame: a run's flight phases
+    assert flight(running) > 0.4 and flight(slow) < 0.1
+    np.testing.assert_array_equal(shaper(walk, ShapeContext(walk, slow, running, 20.0)), walk)
+    with pytest.raises(ValueError, match="needs the example's reference"):
+        shaper(walk, ShapeContext(walk, slow, None, 20.0))
+
+
+def test_a_retimed_output_comes_back_with_its_caption_segments_retimed() -> None:
+    content, reference = clip("neutral", seed=5), clip("neutral", seed=6)
+    captions = [Caption(text="a person walks"), Caption(text="a person walks forward", start=1.0, end=2.0)]
+    source = MotionClip("walk_0", content, captions, 20.0)
+    model = ShapedModel(Unchanged(), [output_shapers.create("match_tempo")], [retime(reference, 0.5, 400)], [reference])
+    (out,) = model.transfer([source])
+    assert len(out.motion) > 1.5 * len(content)
+    whole, segment = out.captions
+    assert whole == captions[0]
+    tempo = len(content) / len(out.motion)
+    assert (segment.start, segment.end) == pytest.approx((1.0 / tempo, 2.0 / tempo), abs=1e-3)

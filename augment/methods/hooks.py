@@ -74,13 +74,18 @@ class SamplerCallback(ABC):
 
 
 class OutputShaper(ABC):
-    """Called on each transfer output (T, F); returns the shaped output, the same shape."""
+    """Called on each transfer output (T, F); returns the shaped output, F wide (T frames unless it retimes)."""
 
     needs_reference: ClassVar[bool] = False
     """Whether it reads ``ShapeContext.reference`` (then ``prepare`` picks a stand-in for each example)."""
 
     @abstractmethod
     def __call__(self, output: np.ndarray, context: ShapeContext) -> np.ndarray: ...
+
+    def context_after(self, context: ShapeContext) -> ShapeContext:
+        """The context the steps after this one read: the same, unless this step plays the output at another clock
+        (then the content and the reference on that clock, so every later step compares clips of one pace)."""
+        return context
 
 
 class LossTerm(ABC):

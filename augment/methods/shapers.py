@@ -2,10 +2,10 @@
 transfer's output that read the content and, where they need one, the style example and its reference (the pool
 clip standing in for the example's content performed plainly). Style-ERD's configs chain ``STYLE_ERD_CHAIN``.
 
-- ``moments``: the example's posture and amplitude over its reference (AdaIN's moments); ``coordination``: its
-  change of joint covariance over its reference (whitening and colouring), over time lags where ``taps`` > 0;
-- ``bone_lengths``: the content's bones back; ``lock_feet``: the root moved so a planted foot stays put;
-  ``plant_feet``: the content's planted toes held still and its swing clearance kept, by moving the legs;
+- ``match_tempo``: the output, and for the later steps the content and reference, at the example's cycle rate;
+- ``moments``: posture and amplitude over the reference (AdaIN); ``coordination``: joint covariance (whitening and
+  colouring), over time lags where ``taps`` > 0; ``bone_lengths``: the content's bones back;
+- ``lock_feet``: the root moved so a planted foot stays put; ``plant_feet``: planted toes held, swing clearance kept;
 - ``in_place_rhythm``: an in-place example's body bounce and trunk sway, what its reference lacks, on clips in place.
 Each step was chosen on an LSO fold 1 val split against its control (``bench/RESULTS.md`` 0).
 """
@@ -20,10 +20,12 @@ from motionaug.augment.methods.hooks import HookSpec, OutputShaper, ShapeContext
 from motionaug.augment.metrics import foot_contacts_from_features
 from motionaug.augment.motion.features import feature_slices, features_to_joints
 from motionaug.augment.motion.foot_lock import lock_feet, plant_feet
+from motionaug.augment.motion.tempo import retime, style_tempo
 from motionaug.augment.motion.travel import opposed, travels
 from motionaug.schemas.skeleton import T2M
 
 STYLE_ERD_CHAIN: tuple[HookSpec, ...] = (
+    "match_tempo",
     {"name": "coordination", "lag": 3, "taps": 6},
     "moments",
     "bone_lengths",
@@ -32,6 +34,7 @@ STYLE_ERD_CHAIN: tuple[HookSpec, ...] = (
     "plant_feet",
 )
 """The output shapers both Style-ERD configs and the demo chain after the network (module doc)."""
+FLIGHT_APART = 0.2  # a larger gap in the share of frames with no foot down: a walk against a run, not a tempo
 MAPS_KEPT = 16  # coordination maps a shaper keeps (one per example and reference it has met)
 AMPLITUDE_MOST = 4.0  # the largest factor an output channel's deviations are scaled by (near-still channels)
 
@@ -367,3 +370,54 @@ class InPlaceRhythm(OutputShaper):
         drop, sway = body_rhythm(np.asarray(context.example), len(output), width)
         reference = body_rhythm(np.asarray(context.reference), len(output), width)
         return with_body_rhythm(output, *beyond_reference(drop, sway, reference))
+
+
+def flight(features: np.ndarray) -> float:
+    """The share of frames with no foot on the ground: a run's flight phases (0 for a walk or a wave)."""
+    return float((~foot_contacts_from_features(features).any(-1)).mean())
+
+
+def example_tempo(context: ShapeContext) -> float:
+    """The example's cycle rate over its reference's (``tempo.style_tempo``): 1.0 when either does not repeat, when
+    the content does not move as the example does (travelling or in place), or when the two are different gaits
+    (``flight`` more than ``FLIGHT_APART`` apart: a walk's cadence over a run's is not a style's tempo)."""
+    if context.reference is None:
+        raise ValueError("the match_tempo shaper needs the example's reference")
+    if travels(context.content, context.fps) != travels(context.example, context.fps):
+        return 1.0
+    if abs(flight(context.example) - flight(context.reference)) > FLIGHT_APART:
+        return 1.0
+    tempo, _ = style_tempo([(context.example, context.fps)], [(context.reference, context.fps)], min_references=1)
+    return 1.0 if tempo is None else tempo
+
+
+@output_shapers.register("match_tempo")
+class MatchTempo(OutputShaper):
+    """The output played at the example's cycle rate over its reference's, and the steps after it on that clock.
+
+    Why: ``coordination``'s lagged covariances and ``moments``' variances compare the example with its reference, and
+    where the two walk at different cadences (a slow style against the nearest plain walk) the cadence comes through
+    as a change of coordination: applied at the content's own cadence, it lengthens strides and turns walks into runs
+    and turns. Played at the example's rate, with the reference and the content retimed to it for the steps after
+    (``context_after``), the map holds only what the style changes at one cadence, and the output keeps the style's
+    pace. A retimed clip has at most ``cap`` frames, or its own count if longer (HumanML3D's 196); a slower one loses
+    its end. The run retimes the captions' segments with it (``shaping.ShapedModel``).
+    """
+
+    needs_reference = True
+
+    def __init__(self, cap: int = 196) -> None:
+        if cap < 2:
+            raise ValueError(f"match_tempo needs cap >= 2, got {cap}")
+        self.cap = cap
+
+    def __call__(self, output: np.ndarray, context: ShapeContext) -> np.ndarray:
+        return retime(output, example_tempo(context), max(len(output), self.cap))
+
+    def context_after(self, context: ShapeContext) -> ShapeContext:
+        tempo = example_tempo(context)
+        if tempo == 1.0 or context.reference is None:
+            return context
+        content = retime(context.content, tempo, max(len(context.content), self.cap))
+        reference = retime(context.reference, tempo, max(len(context.reference), self.cap))
+        return ShapeContext(content, context.example, reference, context.fps, context.alike)

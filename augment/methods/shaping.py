@@ -24,6 +24,7 @@ from motionaug.augment.corpus.rejects import Reject
 from motionaug.augment.methods.base import StyleModel
 from motionaug.augment.methods.hooks import HookSpec, OutputShaper, ShapeContext, needs_reference
 from motionaug.augment.motion.features import feature_slices
+from motionaug.augment.motion.tempo import retime_captions
 from motionaug.augment.motion.travel import travels
 from motionaug.augment.outputs.shards import TransferOutput
 from motionaug.schemas.errors import MotionDataError
@@ -148,6 +149,7 @@ def shape(
     context = ShapeContext(content.motion.astype(np.float32), examples[picked], reference, content.fps, alike)
     for shaper in shapers:
         output = shaper(output, context)
+        context = shaper.context_after(context)
     return output
 
 
@@ -179,5 +181,8 @@ class ShapedModel:
             if not np.isfinite(motion).all():
                 shaped.append(Reject(id=clip.id, source=f"clip {clip.id}", reason="non-finite shaped output"))
                 continue
-            shaped.append(replace(out, motion=motion.astype(np.float32)))
+            captions = out.captions
+            if len(motion) != len(out.motion):  # a step played it at the style's clock: the segments move with it
+                captions = retime_captions(captions, len(out.motion) / len(motion), len(motion) / clip.fps)
+            shaped.append(replace(out, motion=motion.astype(np.float32), captions=captions))
         return shaped
