@@ -39,6 +39,7 @@ def bone_lengths(joints: np.ndarray) -> np.ndarray:
 def shaped(motion: np.ndarray, chain: list, context: ShapeContext) -> np.ndarray:
     for shaper in output_shapers.create_all(chain):
         motion = shaper(motion, context)
+        context = shaper.context_after(context)
     return motion
 
 
