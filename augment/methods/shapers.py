@@ -410,12 +410,18 @@ class MatchTempo(OutputShaper):
         if cap < 2:
             raise ValueError(f"match_tempo needs cap >= 2, got {cap}")
         self.cap = cap
+        self._measured: tuple[ShapeContext, float] | None = None  # the tempo ``__call__`` found, for ``context_after``
+
+    def _tempo(self, context: ShapeContext) -> float:
+        if self._measured is None or self._measured[0] is not context:
+            self._measured = (context, example_tempo(context))
+        return self._measured[1]
 
     def __call__(self, output: np.ndarray, context: ShapeContext) -> np.ndarray:
-        return retime(output, example_tempo(context), max(len(output), self.cap))
+        return retime(output, self._tempo(context), max(len(output), self.cap))
 
     def context_after(self, context: ShapeContext) -> ShapeContext:
-        tempo = example_tempo(context)
+        tempo = self._tempo(context)
         if tempo == 1.0 or context.reference is None:
             return context
         content = retime(context.content, tempo, max(len(context.content), self.cap))
