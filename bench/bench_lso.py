@@ -151,6 +151,7 @@ def setup(args: argparse.Namespace) -> None:
             "epochs": args.judge_epochs,
             "threads": args.threads,  # the fit's float sums, hence its weights, depend on the thread count
             "test_accuracy": judges.info.accuracy,
+            "judges": judges.fingerprint,
         }
         atomic_write_text(RESULTS / f"{args.kind}-judges.json", json.dumps(summary, indent=1) + "\n")
 
@@ -396,7 +397,8 @@ def fmd_or_none(a: np.ndarray, b: np.ndarray, seed: int) -> tuple[float | None, 
 
 def score(args: argparse.Namespace, transfers: Transfers) -> dict[str, Any]:
     """Per (style, draw, k): each judge's top-1 reading of every transfer, FMD against real held-out takes of the
-    style (content judge 1's features, matched counts, as the earlier Bandai-2 figures), foot skating."""
+    style (content judge 1's features, matched counts, as the earlier Bandai-2 figures), foot skating; and which
+    judge fit read them (``Judges.fingerprint``)."""
     judges = load_judges(args.work / "judges")
     held = Corpus(args.corpus, split=args.split).by_style()
     train = Corpus(args.corpus, split="train").by_style()
@@ -424,7 +426,7 @@ def score(args: argparse.Namespace, transfers: Transfers) -> dict[str, Any]:
                 "real_skating": mean_foot_skating([features_to_joints(c.motion) for c in held[style]], T2M, 20.0),
             }
         )
-    return {"units": units}
+    return {"units": units, "judges": judges.fingerprint}
 
 
 # ---- gather ----------------------------------------------------------------------------------------------------
@@ -484,12 +486,26 @@ def gather_wide(args: argparse.Namespace) -> None:
                 folds.append("/".join("100" if v == "100.0" else v for v in values))
             cells.append("; ".join(folds))
         print(f"| {row} | " + " | ".join(cells) + " |")
+    print(judges_note({row: list(folds.values()) for row, folds in found.items()}))
+
+
+def judges_note(rows: dict[str, list[dict[str, Any]]]) -> str:
+    """Which judge fit scored each row (``Judges.fingerprint``; ``unrecorded`` for units written before units kept
+    it): rows compare only under one fit, as a refit moves the same outputs' readings by several points."""
+    by_fit: dict[str, list[str]] = defaultdict(list)
+    for row, results in rows.items():
+        for fit in sorted({result.get("judges") or "unrecorded" for result in results}):
+            by_fit[fit].append(row)
+    fits = "; ".join(f"{fit}: {', '.join(sorted(set(names)))}" for fit, names in sorted(by_fit.items()))
+    warning = " (several fits: compare rows under one fit only)" if len(by_fit) > 1 else ""
+    return f"judges{warning}: {fits}"
 
 
 def gather(args: argparse.Namespace) -> None:
     if args.wide:
         gather_wide(args)
         return
+    rows: dict[str, list[dict[str, Any]]] = defaultdict(list)
     print("| fold | row | k | SRA j1 | SRA j2 | CRA c1 | CRA c2 | worst style j2 | FMD / floor | skating / real | s |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for path in sorted(RESULTS.glob(f"{args.kind}-fold*-*-{args.split}.json")):
@@ -501,6 +517,8 @@ def gather(args: argparse.Namespace) -> None:
                 f"| {s['cra_content']:.1%} | {s['cra_content_pose']:.1%} | {s['worst_style_sra_style_clip']:.1%} "
                 f"| {s['fmd_ratio']:.2f} | {s['skating_ratio']:.2f} | {result['seconds']:.0f} |"
             )
+        rows[result["row"]].append(result)
+    print(judges_note(rows))
 
 
 # ---- across datasets: dataset-1 styles no trained part has seen, on Bandai-2 test takes -------------------------
@@ -585,6 +603,7 @@ def cross_run(args: argparse.Namespace) -> None:
         "split": args.split,
         "shapers": args.shapers if args.row == "shapers" else None,
         "judges": args.judges,
+        "fingerprints": {"style": style_judges.fingerprint, "content": content_judges.fingerprint},
         "seconds": round(seconds, 1),
     }
     write_unit(f"cross-{args.fold}-{row_name(args)}-{args.split}{judges_suffix(args)}", result)

@@ -1,5 +1,5 @@
 """The protocol's judges: what each reads, that the second style judge cannot be moved by the moment rule, and
-that trained judges save, load and read real held-out clips."""
+that trained judges save, load, read real held-out clips and name their fit (the fingerprint the LSO gather prints)."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from conftest import load_bench
 
 from motionaug.augment.corpus import Corpus
 from motionaug.augment.eval.judges import JUDGES, fit_judges, judge_input, load_judges, motion_channels
@@ -77,3 +78,15 @@ def test_judges_fit_save_load_and_report_held_out_accuracy(corpus: Path, tmp_pat
         np.testing.assert_array_equal(pred, pred2)
         np.testing.assert_allclose(feats, feats2, atol=1e-6)
     assert loaded.labels("style") == ["neutral", "old", "proud"]
+    # the fingerprint names the fit: kept through save and load, changed by any weight
+    assert loaded.fingerprint == judges.fingerprint and len(judges.fingerprint) == 12
+    with torch.no_grad():
+        next(loaded.models["content_pose"].parameters()).view(-1)[0] += 1e-6
+    assert loaded.fingerprint != judges.fingerprint
+
+
+def test_the_lso_gather_names_the_judge_fit_of_each_row() -> None:
+    lso = load_bench("bench_lso")
+    mixed = lso.judges_note({"erd": [{"judges": "a1"}, {"judges": "a1"}], "content": [{"units": []}]})
+    assert mixed == "judges (several fits: compare rows under one fit only): a1: erd; unrecorded: content"
+    assert lso.judges_note({"erd": [{"judges": "a1"}], "moments": [{"judges": "a1"}]}) == "judges: a1: erd, moments"

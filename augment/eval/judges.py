@@ -9,6 +9,7 @@ satisfy it. Every judge is the same network and recipe (``models.evaluators``); 
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -89,6 +90,20 @@ class Judges:
 
     def labels(self, name: str) -> list[str]:
         return self.info.labels[name]
+
+    @property
+    def fingerprint(self) -> str:
+        """12 hex digits of a hash over every judge's weights: which fit scored a figure.
+
+        Why: the same fit command gives bit-identical judges on one machine but not across CPUs (kernels sum floats
+        in another order), and one refit moves the same outputs' readings by several points, so figures compare
+        only where their fingerprints agree."""
+        digest = hashlib.sha256()
+        for name in sorted(self.models):
+            for key, tensor in sorted(self.models[name].state_dict().items()):
+                digest.update(f"{name}.{key}{tuple(tensor.shape)}".encode())
+                digest.update(tensor.detach().contiguous().numpy().tobytes())
+        return digest.hexdigest()[:12]
 
     def predict(self, name: str, motions: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         """(N,) predicted label indices (top-1) and (N, F) features, for un-normalised feature clips."""
