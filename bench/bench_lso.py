@@ -496,7 +496,7 @@ def judges_note(rows: dict[str, list[dict[str, Any]]]) -> str:
     for row, results in rows.items():
         for fit in sorted({result.get("judges") or "unrecorded" for result in results}):
             by_fit[fit].append(row)
-    fits = "; ".join(f"{fit}: {', '.join(sorted(set(names)))}" for fit, names in sorted(by_fit.items()))
+    fits = "; ".join(f"{fit}: {', '.join(sorted(names))}" for fit, names in sorted(by_fit.items()))
     warning = " (several fits: compare rows under one fit only)" if len(by_fit) > 1 else ""
     return f"judges{warning}: {fits}"
 

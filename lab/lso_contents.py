@@ -1,6 +1,6 @@
 """Which contents a leave-style-out row wins and loses: a unit's readings per (content, style), k = 1 by default.
 
-    .venv/bin/python lab/lso_contents.py bench/lso/synthetic-fold1-shapers+steps-posture-val.json [more units] [--k 3]
+    .venv/bin/python lab/lso_contents.py bench/lso/synthetic-fold1-shapers+dx9-posture-val.json [more units] [--k 3]
 
 For each committed unit (``bench/bench_lso.py run``) it prints, per content of the scored clips and per held-out
 style, how many transfers each judge reads as the style (``j1``, ``j2``) and how many keep their content (``c1``,
@@ -22,7 +22,7 @@ def table(unit_file: Path, k: int) -> tuple[dict[tuple[str, str], list[int]], Co
     """(style, content) -> [j1, j2, c1, c2, n] counts, and (content, read as, judge) -> count of the misreads."""
     counts: dict[tuple[str, str], list[int]] = defaultdict(lambda: [0] * (len(READS) + 1))
     misread: Counter[tuple[str, str, str]] = Counter()
-    for unit in json.loads(unit_file.read_text())["units"]:
+    for unit in json.loads(unit_file.read_text(encoding="utf-8"))["units"]:
         if unit["k"] != k:
             continue
         style = unit["style"]
