@@ -1,5 +1,5 @@
-"""The tempo, coordination (also over time lags), bone-length, foot-lock, foot-planting and in-place rhythm shapers
-(``augment/methods/shapers.py``) on real-shaped features: what each keeps and moves."""
+"""The tempo, coordination (also over time lags and in bone coordinates), bone-length, foot-lock, foot-planting and
+in-place rhythm shapers (``augment/methods/shapers.py``) on real-shaped features: what each keeps and moves."""
 
 from __future__ import annotations
 
@@ -13,12 +13,14 @@ from motionaug.augment.methods.shapers import (
     STYLE_ERD_CHAIN,
     beyond_reference,
     body_rhythm,
+    bone_channels,
     coordination_transfer,
     delays,
     flight,
     position_channels,
     toe_contacts,
     toe_heights,
+    with_bone_channels,
     with_bone_lengths,
 )
 from motionaug.augment.methods.shaping import ShapedModel
@@ -261,3 +263,36 @@ def test_a_retimed_output_comes_back_with_its_caption_segments_retimed() -> None
     assert whole == captions[0]
     tempo = len(content) / len(out.motion)
     assert (segment.start, segment.end) == pytest.approx((1.0 / tempo, 2.0 / tempo), abs=1e-3)
+
+
+def test_bone_coordinates_rebuild_the_joints_and_the_bone_map_moves_the_bones_coupling_toward_the_examples() -> None:
+    content, example, reference = clip("neutral"), clip("old", seed=1), clip("neutral", seed=2)
+    np.testing.assert_allclose(with_bone_channels(content, bone_channels(content)), content, atol=1e-6)
+    np.testing.assert_allclose(
+        coordination_transfer(content, example, example, 0.0, 1e-3, lag=3, taps=6, basis="bones"), content, atol=1e-4
+    )
+    out = coordination_transfer(reference, example, reference, 0.0, 1e-6, lag=3, taps=2, basis="bones")
+    want = lagged_cross_covariance(bone_channels(example), 3)
+    gap = [np.abs(lagged_cross_covariance(bone_channels(x), 3) - want).max() for x in (reference, out)]
+    assert gap[1] < 0.5 * gap[0]
+    in_positions = coordination_transfer(reference, example, reference, 0.0, 1e-6, lag=3, taps=2)
+    assert np.abs(out - in_positions).max() > 1e-2  # the basis matters: the square roots are not invariant to it
+    with pytest.raises(ValueError, match="basis"):
+        output_shapers.create({"name": "coordination", "basis": "angles"})
+
+
+def test_the_bone_basis_shaper_is_its_transfer_and_plays_an_opposed_clip_backwards() -> None:
+    example, reference = clip("proud", seed=3), clip("neutral", seed=2)
+    backward, forward = clip("neutral", "walk_backward", seed=4), clip("neutral", seed=5)
+    shaper = output_shapers.create({"name": "coordination", "lag": 3, "taps": 2, "basis": "bones"})
+    for content in (forward, backward):
+        got = shaper(content, ShapeContext(content=content, example=example, reference=reference, fps=20.0))
+        if content is backward:
+            played_back = content[::-1].copy()
+            want = coordination_transfer(played_back, example, reference, 0.0, 1e-3, lag=3, taps=2, basis="bones")
+            want = want[::-1]
+            as_recorded = coordination_transfer(content, example, reference, 0.0, 1e-3, lag=3, taps=2, basis="bones")
+            assert np.abs(want - as_recorded).max() > 1e-2  # so the rule is what this test checks
+        else:
+            want = coordination_transfer(content, example, reference, 0.0, 1e-3, lag=3, taps=2, basis="bones")
+        np.testing.assert_allclose(got, want, atol=1e-6)

@@ -1,10 +1,12 @@
 """The output shapers the shipped configs name, registered in ``hooks.output_shapers``: post-processes of a
 transfer's output that read the content and, where they need one, the style example and its reference (the pool
-clip standing in for the example's content performed plainly). Style-ERD's configs chain ``STYLE_ERD_CHAIN``.
+clip standing in for the example's content performed plainly). Style-ERD's configs chain ``STYLE_ERD_CHAIN``, the
+motion-capture one with the map in bone coordinates (``STYLE_ERD_CAPTURE_CHAIN``).
 
 - ``match_tempo``: the output, and for the later steps the content and reference, at the example's cycle rate;
 - ``moments``: posture and amplitude over the reference (AdaIN); ``coordination``: joint covariance (whitening and
-  colouring), over time lags where ``taps`` > 0; ``bone_lengths``: the content's bones back;
+  colouring), over time lags where ``taps`` > 0, of the joint positions or the bones; ``bone_lengths``: the content's
+  bones back;
 - ``lock_feet``: the root moved so a planted foot stays put; ``plant_feet``: planted toes held, swing clearance kept;
 - ``in_place_rhythm``: an in-place example's body bounce and trunk sway, what its reference lacks, on clips in place.
 Each step was chosen on an LSO fold 1 val split against its control (``bench/RESULTS.md`` 0).
@@ -33,7 +35,13 @@ STYLE_ERD_CHAIN: tuple[HookSpec, ...] = (
     "in_place_rhythm",
     "plant_feet",
 )
-"""The output shapers both Style-ERD configs and the demo chain after the network (module doc)."""
+"""The output shapers the synthetic Style-ERD config and the demo chain after the network (module doc)."""
+STYLE_ERD_CAPTURE_CHAIN: tuple[HookSpec, ...] = tuple(
+    {**spec, "basis": "bones"} if isinstance(spec, dict) and spec["name"] == "coordination" else spec
+    for spec in STYLE_ERD_CHAIN
+)
+"""The same chain with the coordination map in bone coordinates: what the motion-capture (Bandai-2) Style-ERD config
+chains, chosen on its LSO fold 1 val split (lab/NOTES.md 0)."""
 FLIGHT_APART = 0.2  # a larger gap in the share of frames with no foot down: a walk against a run, not a tempo
 MAPS_KEPT = 16  # coordination maps a shaper keeps (one per example and reference it has met)
 AMPLITUDE_MOST = 4.0  # the largest factor an output channel's deviations are scaled by (near-still channels)
@@ -95,6 +103,41 @@ def position_channels() -> np.ndarray:
     return np.r_[slices["root_y"], slices["ric"]]
 
 
+BONES = tuple((parent, child) for chain in T2M.kinematic_chain for parent, child in zip(chain[:-1], chain[1:]))
+"""The skeleton's bones as (parent joint, child joint), down each kinematic chain in turn."""
+BASES = ("positions", "bones")
+
+
+def root_relative_joints(features: np.ndarray) -> np.ndarray:
+    """(T, J, 3) float64: the root at (0, root height, 0), the other joints from ``ric`` (facing frame)."""
+    slices = feature_slices(T2M)
+    joints = np.zeros((len(features), T2M.n_joints, 3))
+    joints[:, 0, 1] = features[:, slices["root_y"]][:, 0]
+    joints[:, 1:] = features[:, slices["ric"]].reshape(len(features), T2M.n_joints - 1, 3)
+    return joints
+
+
+def bone_channels(features: np.ndarray) -> np.ndarray:
+    """(T, 1 + 3 x bones) float64: the root height, then each bone's vector (child joint less parent joint)."""
+    joints = root_relative_joints(features)
+    bones = np.stack([joints[:, child] - joints[:, parent] for parent, child in BONES], axis=1)
+    return np.concatenate([joints[:, 0, 1:2], bones.reshape(len(features), -1)], axis=1)
+
+
+def with_bone_channels(features: np.ndarray, channels: np.ndarray) -> np.ndarray:
+    """``features`` (T, F) with the root height and the joints rebuilt down the chains from ``bone_channels``."""
+    slices = feature_slices(T2M)
+    bones = channels[:, 1:].reshape(len(features), len(BONES), 3)
+    joints = np.zeros((len(features), T2M.n_joints, 3))
+    joints[:, 0, 1] = channels[:, 0]
+    for n, (parent, child) in enumerate(BONES):
+        joints[:, child] = joints[:, parent] + bones[:, n]
+    out = features.copy()
+    out[:, slices["root_y"]] = channels[:, :1].astype(np.float32)
+    out[:, slices["ric"]] = joints[:, 1:].reshape(len(features), -1).astype(np.float32)
+    return out
+
+
 def _covariance(x: np.ndarray, shrink: float) -> np.ndarray:
     d = x - x.mean(0)
     cov = d.T @ d / max(len(x) - 1, 1)
@@ -152,9 +195,16 @@ def coordination_transfer(
     cols: np.ndarray | None = None,
     lag: int = 1,
     taps: int = 0,
+    basis: str = "positions",
 ) -> np.ndarray:
     """``output`` (T, F) with its position channels' deviations from their means mapped by S_e^(1/2) S_r^(-1/2);
-    ``cols``: the channels mapped (default every position channel); ``lag``, ``taps``: ``coordination_map``."""
+    ``cols``: the channels mapped (default every position channel); ``lag``, ``taps``: ``coordination_map``;
+    ``basis`` ``bones``: the map over ``bone_channels`` instead, the joints rebuilt from the mapped bones."""
+    if basis == "bones":
+        ex, ref, out = (bone_channels(m) for m in (example, reference, output))
+        every = np.arange(out.shape[1])
+        colour = coordination_map(ex, ref, shrink, floor, every, lag, taps)
+        return with_bone_channels(output, apply_coordination(out, colour, every, lag, taps))
     cols = position_channels() if cols is None else cols
     colour = coordination_map(example, reference, shrink, floor, cols, lag, taps)
     return apply_coordination(output, colour, cols, lag, taps)
@@ -177,18 +227,31 @@ class Coordination(OutputShaper):
     own coordination (a wave, a kick) is kept and only the style's change to it added: a content as plain as the
     reference comes out with the example's covariance, and the same example and reference change nothing. Only the joint
     positions change; the joint rotations and velocities stay the content's.
+
+    ``basis``: the coordinates x is taken in, ``positions`` (root height and root-relative joints) or ``bones`` (root
+    height and each bone's vector, child less parent, the joints rebuilt down the chains after the map). The bones are
+    an invertible linear change of the positions' coordinates, but the symmetric square roots are not invariant to
+    one, so the two maps differ in the rotation whitening-colouring adds, which is where the style is read; in bone
+    coordinates a bone's change moves the joints below it with it, as a skeleton moves.
     """
 
     needs_reference = True
 
-    def __init__(self, shrink: float = 0.0, floor: float = 1e-3, lag: int = 1, taps: int = 0) -> None:
+    def __init__(
+        self, shrink: float = 0.0, floor: float = 1e-3, lag: int = 1, taps: int = 0, basis: str = "positions"
+    ) -> None:
         if not (0.0 <= shrink <= 1.0 and 0.0 < floor < 1.0 and lag >= 1 and taps >= 0):
             raise ValueError(
                 f"coordination needs shrink in [0, 1], floor in (0, 1), lag >= 1, taps >= 0; got {shrink}, {floor},"
                 f" {lag}, {taps}"
             )
-        self.shrink, self.floor, self.lag, self.taps = shrink, floor, lag, taps
+        if basis not in BASES:
+            raise ValueError(f"coordination basis {basis!r} is not one of {', '.join(BASES)}")
+        self.shrink, self.floor, self.lag, self.taps, self.basis = shrink, floor, lag, taps, basis
         self._maps: dict[bytes, np.ndarray] = {}  # by example and reference: a run shapes many clips per example
+
+    def _coordinates(self, motion: np.ndarray) -> np.ndarray:
+        return bone_channels(motion) if self.basis == "bones" else motion
 
     def __call__(self, output: np.ndarray, context: ShapeContext) -> np.ndarray:
         if context.reference is None:
@@ -196,18 +259,20 @@ class Coordination(OutputShaper):
         key = hashlib.blake2b(digest_size=16)
         for m in (context.example, context.reference):
             key.update(np.ascontiguousarray(m, dtype=np.float32).tobytes() + str(m.shape).encode())
-        cols = position_channels()
+        x = self._coordinates(output)
+        cols = np.arange(x.shape[1]) if self.basis == "bones" else position_channels()
         colour = self._maps.get(key.digest())
         if colour is None:
             if len(self._maps) >= MAPS_KEPT:
                 self._maps.pop(next(iter(self._maps)))
-            colour = coordination_map(
-                context.example, context.reference, self.shrink, self.floor, cols, self.lag, self.taps
-            )
+            example, reference = (self._coordinates(m) for m in (context.example, context.reference))
+            colour = coordination_map(example, reference, self.shrink, self.floor, cols, self.lag, self.taps)
             self._maps[key.digest()] = colour
         if self.taps and opposed(context.content, context.example, context.fps):
-            return apply_coordination(output[::-1], colour, cols, self.lag, self.taps)[::-1].copy()
-        return apply_coordination(output, colour, cols, self.lag, self.taps)
+            mapped = apply_coordination(x[::-1], colour, cols, self.lag, self.taps)[::-1].copy()
+        else:
+            mapped = apply_coordination(x, colour, cols, self.lag, self.taps)
+        return with_bone_channels(output, mapped) if self.basis == "bones" else mapped
 
 
 @output_shapers.register("lock_feet")
@@ -252,10 +317,7 @@ class PlantFeet(OutputShaper):
 def with_bone_lengths(output: np.ndarray, content: np.ndarray) -> np.ndarray:
     """``output`` (T, F) whose root-relative joints keep each bone's direction at the content's mean bone length."""
     slices = feature_slices(T2M)
-    joints = np.zeros((2, len(output), T2M.n_joints, 3))
-    for n, m in enumerate((output, content)):
-        joints[n, :, 0, 1] = m[:, slices["root_y"]][:, 0]
-        joints[n, :, 1:] = m[:, slices["ric"]].reshape(len(m), T2M.n_joints - 1, 3)
+    joints = np.stack([root_relative_joints(m) for m in (output, content)])
     out_joints, length = joints[0].copy(), {}
     for chain in T2M.kinematic_chain:
         for parent, child in zip(chain[:-1], chain[1:]):

@@ -1,0 +1,98 @@
+"""The coordination map on the skeleton's bones instead of its joint positions: does a map whose coordinates are the
+bones lose less of the style to ``bone_lengths`` afterwards? (Adopted without ``unit`` as the product's
+``coordination`` with ``basis: bones`` in the Bandai-2 Style-ERD config; bit-identical.)
+
+- output shaper ``coordination_bones`` (``lag``, ``taps``, ``floor`` as the product's ``coordination``; ``unit``): the
+  product's whitening-colouring map, delay-embedded and played backwards where the content travels against the
+  example, taken over the root height and the 21 bone vectors (child joint less parent joint) instead of the root
+  height and the 21 root-relative joint positions; the joints are rebuilt down the kinematic chains from the mapped
+  bones. With ``unit`` the bones are scaled to unit length before the covariances and the map, and the mapped
+  directions are given back the output's own per-frame lengths: the map then moves directions only.
+
+Why: on Bandai-2 fold 1 val the product's map alone reads 61.1% on style judge 2 and ``bone_lengths`` takes 7 points of
+it back (lab/NOTES 0, "Where Bandai-2's judge 2 goes along the chain"). Bones are a linear, invertible change of
+coordinates of the positions, but the symmetric square roots of whitening-colouring are not invariant to such a change,
+so the two maps differ in the rotation part of the map, the part judge 2 reads; a map of directions cannot stretch a
+bone at all. Control: ``--row shapers`` with the product's ``coordination`` (``dx9-chain``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+
+from motionaug.augment.methods.hooks import OutputShaper, ShapeContext, output_shapers
+from motionaug.augment.methods.shapers import apply_coordination, coordination_map
+from motionaug.augment.motion.features import feature_slices
+from motionaug.augment.motion.travel import opposed
+from motionaug.schemas.skeleton import T2M
+
+EDGES = tuple((p, c) for chain in T2M.kinematic_chain for p, c in zip(chain[:-1], chain[1:]))
+
+
+def joints_of(features: np.ndarray) -> np.ndarray:
+    """(T, J, 3) root-relative joints: the root at (0, root height, 0), the rest from ``ric``."""
+    slices = feature_slices(T2M)
+    joints = np.zeros((len(features), T2M.n_joints, 3))
+    joints[:, 0, 1] = features[:, slices["root_y"]][:, 0]
+    joints[:, 1:] = features[:, slices["ric"]].reshape(len(features), T2M.n_joints - 1, 3)
+    return joints
+
+
+def bones_of(features: np.ndarray, unit: bool) -> tuple[np.ndarray, np.ndarray]:
+    """(T, 1 + 3 x bones): the root height, each bone's vector (unit length with ``unit``); and (T, bones) lengths."""
+    joints = joints_of(features)
+    bones = np.stack([joints[:, c] - joints[:, p] for p, c in EDGES], axis=1)
+    length = np.linalg.norm(bones, axis=-1)
+    if unit:
+        bones = bones / np.maximum(length[..., None], 1e-9)
+    return np.concatenate([joints[:, 0, 1:2], bones.reshape(len(features), -1)], axis=1), length
+
+
+def with_bones(features: np.ndarray, channels: np.ndarray, length: np.ndarray | None) -> np.ndarray:
+    """``features`` with root height and ``ric`` rebuilt from (T, 1 + 3 x bones) ``channels`` down the chains; with
+    ``length`` (T, bones), each bone is scaled to it."""
+    slices = feature_slices(T2M)
+    bones = channels[:, 1:].reshape(len(features), len(EDGES), 3)
+    if length is not None:
+        bones = bones / np.maximum(np.linalg.norm(bones, axis=-1, keepdims=True), 1e-9) * length[..., None]
+    joints = np.zeros((len(features), T2M.n_joints, 3))
+    joints[:, 0, 1] = channels[:, 0]
+    for n, (parent, child) in enumerate(EDGES):
+        joints[:, child] = joints[:, parent] + bones[:, n]
+    out = features.copy()
+    out[:, slices["root_y"]] = channels[:, :1].astype(np.float32)
+    out[:, slices["ric"]] = joints[:, 1:].reshape(len(features), -1).astype(np.float32)
+    return out
+
+
+@output_shapers.register("coordination_bones")
+class CoordinationBones(OutputShaper):
+    """The product's coordination map over the bones (module doc)."""
+
+    needs_reference = True
+
+    def __init__(self, lag: int = 3, taps: int = 6, floor: float = 1e-3, unit: bool = False) -> None:
+        self.lag, self.taps, self.floor, self.unit = lag, taps, floor, bool(unit)
+        self._maps: dict[bytes, np.ndarray] = {}
+
+    def __call__(self, output: np.ndarray, context: ShapeContext) -> np.ndarray:
+        if context.reference is None:
+            raise ValueError("coordination_bones needs the example's reference")
+        key = hashlib.blake2b(digest_size=16)
+        for m in (context.example, context.reference):
+            key.update(np.ascontiguousarray(m, dtype=np.float32).tobytes() + str(m.shape).encode())
+        cols = np.arange(1 + 3 * len(EDGES))
+        if key.digest() not in self._maps:
+            ex, ref = (bones_of(m, self.unit)[0] for m in (context.example, context.reference))
+            self._maps[key.digest()] = coordination_map(ex, ref, 0.0, self.floor, cols, self.lag, self.taps)
+        colour = self._maps[key.digest()]
+        channels, length = bones_of(output, self.unit)
+        backwards = bool(self.taps) and opposed(context.content, context.example, context.fps)
+        if backwards:
+            channels = channels[::-1]
+        mapped = apply_coordination(channels, colour, cols, self.lag, self.taps)
+        if backwards:
+            mapped = mapped[::-1]
+        return with_bones(output, mapped, length if self.unit else None)
