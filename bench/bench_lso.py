@@ -34,6 +34,7 @@ from motionaug.augment.corpus import Corpus
 from motionaug.augment.corpus.clip import MotionClip
 from motionaug.augment.corpus.style_sets import write_without_styles
 from motionaug.augment.eval.judges import JUDGES, fit_judges, load_judges
+from motionaug.augment.eval.numerics import pinned, pinned_env, pinned_kernels
 from motionaug.augment.eval.protocol import (
     LSO_FOLDS,
     ExampleDraws,
@@ -74,6 +75,7 @@ TEMPO_CAP = 196  # on-the-fly's prior's longest clip (its base models' max_frame
 CROSS_DRAWS = 2
 CROSS_JUDGES = "cross-judges"  # the dataset-1 style judges' folder under --work and their summary under RESULTS
 STYLE_JUDGES = ("style", "style_clip")
+PINNED_COMMANDS = ("setup", "cross-setup")  # they fit the judges, under pinned numerics (augment/eval/numerics.py)
 CROSS_WORDS = {  # Bandai dataset-1's styles that no Bandai-2 or synthetic style stands for, in caption words
     "happy": StyleWords(adjective="happy", adverb="happily", phrases=("in a happy way",)),
     "sad": StyleWords(adjective="sad", adverb="sadly", phrases=("in a sad way",)),
@@ -144,12 +146,14 @@ def setup(args: argparse.Namespace) -> None:
         held_out = list(Corpus(args.corpus, split="test"))
         log(f"fitting the judges on {len(train)} train clips ({len(draws.takes())} example takes left out)")
         torch.set_num_threads(args.threads)
-        judges = fit_judges(train, judges_dir, epochs=args.judge_epochs, seed=args.seed, held_out=held_out)
+        with pinned_kernels() as numerics:
+            judges = fit_judges(train, judges_dir, epochs=args.judge_epochs, seed=args.seed, held_out=held_out)
         summary = {
             "commit": commit(),
             "train_clips": len(train),
             "epochs": args.judge_epochs,
             "threads": args.threads,  # the fit's float sums, hence its weights, depend on the thread count
+            "numerics": numerics,  # and on the kernels: pinned, the same on every x86-64 CPU with AVX2
             "test_accuracy": judges.info.accuracy,
             "judges": judges.fingerprint,
         }
@@ -539,17 +543,21 @@ def cross_setup(args: argparse.Namespace) -> None:
         log(f"cross judge without content {content}")
         train = [c for c in clips if c.content != content]
         folder = args.work / "cross-loco" / content
-        judges = fit_judges(train, folder, epochs=args.judge_epochs, seed=args.seed, which=STYLE_JUDGES)
+        with pinned_kernels():
+            judges = fit_judges(train, folder, epochs=args.judge_epochs, seed=args.seed, which=STYLE_JUDGES)
         for name in ("style", "style_clip"):
             held = [c for c in clips if c.content == content and c.style in judges.labels(name)]
             read, _ = judges.predict(name, [c.motion for c in held])
             right = [judges.labels(name)[int(i)] == c.style for i, c in zip(read, held)]
             loco.setdefault(name, {})[content] = float(np.mean(right)) if right else float("nan")
-    fit_judges(clips, args.work / args.judges, epochs=args.judge_epochs, seed=args.seed, which=STYLE_JUDGES)
+    with pinned_kernels() as numerics:
+        fit_judges(clips, args.work / args.judges, epochs=args.judge_epochs, seed=args.seed, which=STYLE_JUDGES)
     summary = {
         "commit": commit(),
         "train_clips": len(clips),
         "epochs": args.judge_epochs,
+        "threads": args.threads,
+        "numerics": numerics,
         "loco_accuracy": {name: float(np.nanmean(list(v.values()))) for name, v in loco.items()},
         "loco_by_content": loco,
     }
@@ -686,6 +694,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--wide", action="store_true", help="gather: one line per row, both folds, k = 1 and 3")
     parser.add_argument("--draws-only", action="store_true", help="setup: fix the example draws, fit no judges yet")
     args = parser.parse_args(argv)
+    if args.command in PINNED_COMMANDS and not pinned():
+        # the judges' fit runs under pinned numerics, which act from a process's start: run again in a fresh one
+        again = [sys.executable, str(Path(__file__).resolve()), *(sys.argv[1:] if argv is None else argv)]
+        raise SystemExit(subprocess.run(again, env=pinned_env()).returncode)
     commands = {"setup": setup, "run": run, "gather": gather, "step-time": step_time}
     commands |= {"cross-setup": cross_setup, "cross": cross_run, "cross-gather": cross_gather}
     commands[args.command](args)

@@ -1,8 +1,12 @@
 """The protocol's judges: what each reads, that the second style judge cannot be moved by the moment rule, and
-that trained judges save, load, read real held-out clips and name their fit (the fingerprint the LSO gather prints)."""
+that trained judges save, load, read real held-out clips and name their fit (the fingerprint the LSO gather prints),
+the same fit on another CPU under the pinned numerics."""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +16,7 @@ from conftest import load_bench
 
 from motionaug.augment.corpus import Corpus
 from motionaug.augment.eval.judges import JUDGES, fit_judges, judge_input, load_judges, motion_channels
+from motionaug.augment.eval.numerics import pinned_env
 from motionaug.augment.methods.hooks import ShapeContext, output_shapers
 from motionaug.augment.motion.batch import pad_batch
 from motionaug.augment.motion.features import Normalizer
@@ -27,6 +32,32 @@ def corpus(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("judges") / "corpus"
     generate_corpus(root, 48, seed=1, styles=["neutral", "proud", "old"], contents=["walk", "run"])
     return root
+
+
+# One judge fit in a fresh process (CPU numerics are fixed at its start), pinned or not; prints its fingerprint.
+FIT = """
+import contextlib, sys
+from pathlib import Path
+import torch
+from motionaug.augment.corpus import Corpus
+from motionaug.augment.eval.judges import fit_judges
+from motionaug.augment.eval.numerics import pinned_kernels
+
+torch.set_num_threads(1)
+train = list(Corpus(Path(sys.argv[1]), split="train"))
+with pinned_kernels() if sys.argv[3] == "pinned" else contextlib.nullcontext():
+    judges = fit_judges(train, Path(sys.argv[2]), epochs=2, size="tiny", which=("style", "style_clip"))
+print(judges.fingerprint)
+"""
+# Another CPU, as far as one machine can show it: oneDNN and MKL held to AVX2, as on a CPU without AVX-512
+CAPPED = {"ONEDNN_MAX_CPU_ISA": "AVX2", "MKL_ENABLE_INSTRUCTIONS": "AVX2"}
+
+
+def fit_in_fresh_process(corpus: Path, out: Path, env: dict[str, str], how: str) -> str:
+    cmd = [sys.executable, "-c", FIT, str(corpus), str(out), how]
+    done = subprocess.run(cmd, env=env, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-3000:]
+    return done.stdout.split()[-1]
 
 
 def moment_rule(content: np.ndarray, example: np.ndarray, reference: np.ndarray, norm: Normalizer) -> np.ndarray:
@@ -90,3 +121,18 @@ def test_the_lso_gather_names_the_judge_fit_of_each_row() -> None:
     mixed = lso.judges_note({"erd": [{"judges": "a1"}, {"judges": "a1"}], "content": [{"units": []}]})
     assert mixed == "judges (several fits: compare rows under one fit only): a1: erd; unrecorded: content"
     assert lso.judges_note({"erd": [{"judges": "a1"}], "moments": [{"judges": "a1"}]}) == "judges: a1: erd, moments"
+
+
+def test_pinned_judges_fit_the_same_weights_on_another_cpu(corpus: Path, tmp_path: Path) -> None:
+    """Under the pinned numerics, a fit with the kernels of a CPU without AVX-512 gives this CPU's weights bit for bit
+    (unpinned, oneDNN's AVX-512 and AVX2 convolutions sum in other orders and the weights differ)."""
+    capability = torch.backends.cpu.get_cpu_capability()
+    if capability not in ("AVX2", "AVX512"):
+        pytest.skip(f"the pinned numerics need an x86-64 CPU with AVX2 (ATen runs {capability} kernels here)")
+    capped = {**os.environ, **CAPPED}
+    here = fit_in_fresh_process(corpus, tmp_path / "here", pinned_env(), "pinned")
+    there = fit_in_fresh_process(corpus, tmp_path / "there", pinned_env(capped), "pinned")
+    assert here == there
+    if capability == "AVX512":  # the capped process is another CPU indeed: unpinned, its fit differs
+        free = fit_in_fresh_process(corpus, tmp_path / "free", dict(os.environ), "free")
+        assert free != fit_in_fresh_process(corpus, tmp_path / "free-capped", capped, "free")
