@@ -1,16 +1,13 @@
-"""The output shapers the shipped configs name, registered in ``hooks.output_shapers``: post-processes of a
-transfer's output that read the content and, where they need one, the style example and its reference (the pool
-clip standing in for the example's content performed plainly). Style-ERD's configs chain ``STYLE_ERD_CHAIN``, the
-motion-capture one with the map in bone coordinates (``STYLE_ERD_CAPTURE_CHAIN``).
+"""The output shapers the shipped configs name (``hooks.output_shapers``): post-processes of a transfer's output that
+read the content and, where they need one, the style example and its reference (a pool clip: the example's content done
+plainly). Style-ERD's configs chain ``STYLE_ERD_CHAIN`` (motion capture: ``STYLE_ERD_CAPTURE_CHAIN``).
 
 - ``match_tempo``: the output, and for the later steps the content and reference, at the example's cycle rate;
 - ``moments``: posture and amplitude over the reference (AdaIN); ``coordination``: joint covariance (whitening and
-  colouring), over time lags where ``taps`` > 0, of the joint positions or the bones; ``bone_lengths``: the content's
-  bones back;
+  colouring), over time lags where ``taps`` > 0, positions or bones; ``bone_lengths``: the content's bones back;
 - ``lock_feet``: the root moved so a planted foot stays put; ``plant_feet``: planted toes held, swing clearance kept;
 - ``in_place_rhythm``: an in-place example's body bounce and trunk sway, what its reference lacks, on clips in place.
-Each step was chosen on an LSO fold 1 val split against its control (``bench/RESULTS.md`` 0).
-"""
+Each step chosen on an LSO fold 1 val split against its control (``bench/RESULTS.md`` 0)."""
 
 from __future__ import annotations
 
