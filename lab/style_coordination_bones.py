@@ -1,6 +1,6 @@
 """The coordination map on the skeleton's bones instead of its joint positions: does a map whose coordinates are the
-bones lose less of the style to ``bone_lengths`` afterwards? (Adopted without ``unit`` as the product's
-``coordination`` with ``basis: bones`` in the Bandai-2 Style-ERD config; bit-identical.)
+bones lose less of the style to ``bone_lengths`` afterwards? (Without ``unit`` it is the product's ``coordination``
+with ``basis: bones``, bit-identical; no config names it: lab/NOTES.md 0.)
 
 - output shaper ``coordination_bones`` (``lag``, ``taps``, ``floor`` as the product's ``coordination``; ``unit``): the
   product's whitening-colouring map, delay-embedded and played backwards where the content travels against the

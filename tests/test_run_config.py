@@ -83,7 +83,7 @@ def test_every_shipped_config_loads_and_its_method_params_validate() -> None:
     from motionaug.augment.corpus.style_examples import describes_style
     from motionaug.augment.methods.hooks import output_shapers
     from motionaug.augment.methods.registry import validate_method_params
-    from motionaug.augment.methods.shapers import STYLE_ERD_CAPTURE_CHAIN, STYLE_ERD_CHAIN
+    from motionaug.augment.methods.shapers import STYLE_ERD_CHAIN
 
     configs = sorted((Path(__file__).parents[1] / "configs").glob("*.yaml"))
     assert {p.name for p in configs} >= {
@@ -100,9 +100,8 @@ def test_every_shipped_config_loads_and_its_method_params_validate() -> None:
                 assert describes_style(example.description, style.words), (path.name, style.name)
         if path.name == "onthefly-lora-synthetic.yaml":  # the recipe bench/RESULTS.md measured
             assert params["lora_rank"] == 4 and "poseFinal" in params["lora_targets"]
-        if config.method.name == "erd":  # the chains RESULTS section 0 measured with Style-ERD
-            chain = STYLE_ERD_CAPTURE_CHAIN if path.name.startswith("bandai2") else STYLE_ERD_CHAIN
-            assert config.method.shapers == list(chain), path.name
+        if config.method.name == "erd":  # the chain RESULTS section 0 measured with Style-ERD
+            assert config.method.shapers == list(STYLE_ERD_CHAIN), path.name
 
 
 def test_a_yaml_syntax_error_names_file_line_and_column(tmp_path: Path) -> None:

@@ -1,6 +1,6 @@
 """The output shapers the shipped configs name (``hooks.output_shapers``): post-processes of a transfer's output that
 read the content and, where they need one, the style example and its reference (a pool clip: the example's content done
-plainly). Style-ERD's configs chain ``STYLE_ERD_CHAIN`` (motion capture: ``STYLE_ERD_CAPTURE_CHAIN``).
+plainly). Style-ERD's configs chain ``STYLE_ERD_CHAIN``.
 
 - ``match_tempo``: the output, and for the later steps the content and reference, at the example's cycle rate;
 - ``moments``: posture and amplitude over the reference (AdaIN); ``coordination``: joint covariance (whitening and
@@ -32,13 +32,7 @@ STYLE_ERD_CHAIN: tuple[HookSpec, ...] = (
     "in_place_rhythm",
     "plant_feet",
 )
-"""The output shapers the synthetic Style-ERD config and the demo chain after the network (module doc)."""
-STYLE_ERD_CAPTURE_CHAIN: tuple[HookSpec, ...] = tuple(
-    {**spec, "basis": "bones"} if isinstance(spec, dict) and spec["name"] == "coordination" else spec
-    for spec in STYLE_ERD_CHAIN
-)
-"""The same chain with the coordination map in bone coordinates: what the motion-capture (Bandai-2) Style-ERD config
-chains, chosen on its LSO fold 1 val split (lab/NOTES.md 0)."""
+"""The output shapers both Style-ERD configs and the demo chain after the network (module doc)."""
 FLIGHT_APART = 0.2  # a larger gap in the share of frames with no foot down: a walk against a run, not a tempo
 MAPS_KEPT = 16  # coordination maps a shaper keeps (one per example and reference it has met)
 AMPLITUDE_MOST = 4.0  # the largest factor an output channel's deviations are scaled by (near-still channels)
@@ -229,7 +223,8 @@ class Coordination(OutputShaper):
     height and each bone's vector, child less parent, the joints rebuilt down the chains after the map). The bones are
     an invertible linear change of the positions' coordinates, but the symmetric square roots are not invariant to
     one, so the two maps differ in the rotation whitening-colouring adds, which is where the style is read; in bone
-    coordinates a bone's change moves the joints below it with it, as a skeleton moves.
+    coordinates a bone's change moves the joints below it with it, as a skeleton moves. No config names ``bones``: on
+    Bandai-2 it reads more with walk examples alone and less with the configs' walk and wave (lab/NOTES.md 0).
     """
 
     needs_reference = True
