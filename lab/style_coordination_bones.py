@@ -18,19 +18,10 @@ stretch a bone at all. Control: ``--row shapers`` with the product's ``coordinat
 
 from __future__ import annotations
 
-import hashlib
-
 import numpy as np
 
-from motionaug.augment.methods.hooks import OutputShaper, ShapeContext, output_shapers
-from motionaug.augment.methods.shapers import (
-    BONES,
-    apply_coordination,
-    bone_channels,
-    coordination_map,
-    with_bone_channels,
-)
-from motionaug.augment.motion.travel import opposed
+from motionaug.augment.methods.hooks import output_shapers
+from motionaug.augment.methods.shapers import BONES, Coordination, bone_channels, with_bone_channels
 
 
 def bones_of(features: np.ndarray, unit: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -53,31 +44,15 @@ def with_bones(features: np.ndarray, channels: np.ndarray, length: np.ndarray | 
 
 
 @output_shapers.register("coordination_bones")
-class CoordinationBones(OutputShaper):
-    """The product's coordination map over the bones (module doc)."""
-
-    needs_reference = True
+class CoordinationBones(Coordination):
+    """The product's coordination map over the bones, or their directions with ``unit`` (module doc)."""
 
     def __init__(self, lag: int = 3, taps: int = 6, floor: float = 1e-3, unit: bool = False) -> None:
-        self.lag, self.taps, self.floor, self.unit = lag, taps, floor, bool(unit)
-        self._maps: dict[bytes, np.ndarray] = {}
+        super().__init__(shrink=0.0, floor=floor, lag=lag, taps=taps, basis="bones")
+        self.unit = bool(unit)
 
-    def __call__(self, output: np.ndarray, context: ShapeContext) -> np.ndarray:
-        if context.reference is None:
-            raise ValueError("coordination_bones needs the example's reference")
-        key = hashlib.blake2b(digest_size=16)
-        for m in (context.example, context.reference):
-            key.update(np.ascontiguousarray(m, dtype=np.float32).tobytes() + str(m.shape).encode())
-        cols = np.arange(1 + 3 * len(BONES))
-        if key.digest() not in self._maps:
-            ex, ref = (bones_of(m, self.unit)[0] for m in (context.example, context.reference))
-            self._maps[key.digest()] = coordination_map(ex, ref, 0.0, self.floor, cols, self.lag, self.taps)
-        colour = self._maps[key.digest()]
-        channels, length = bones_of(output, self.unit)
-        backwards = bool(self.taps) and opposed(context.content, context.example, context.fps)
-        if backwards:
-            channels = channels[::-1]
-        mapped = apply_coordination(channels, colour, cols, self.lag, self.taps)
-        if backwards:
-            mapped = mapped[::-1]
-        return with_bones(output, mapped, length if self.unit else None)
+    def _coordinates(self, motion: np.ndarray) -> np.ndarray:
+        return bones_of(motion, self.unit)[0]
+
+    def _rebuild(self, output: np.ndarray, mapped: np.ndarray) -> np.ndarray:
+        return with_bones(output, mapped, bones_of(output, True)[1] if self.unit else None)

@@ -243,7 +243,12 @@ class Coordination(OutputShaper):
         self._maps: dict[bytes, np.ndarray] = {}  # by example and reference: a run shapes many clips per example
 
     def _coordinates(self, motion: np.ndarray) -> np.ndarray:
+        """A clip's channels in the map's ``basis``."""
         return bone_channels(motion) if self.basis == "bones" else motion
+
+    def _rebuild(self, output: np.ndarray, mapped: np.ndarray) -> np.ndarray:
+        """The output's features from its mapped channels."""
+        return with_bone_channels(output, mapped) if self.basis == "bones" else mapped
 
     def __call__(self, output: np.ndarray, context: ShapeContext) -> np.ndarray:
         if context.reference is None:
@@ -264,7 +269,7 @@ class Coordination(OutputShaper):
             mapped = apply_coordination(x[::-1], colour, cols, self.lag, self.taps)[::-1].copy()
         else:
             mapped = apply_coordination(x, colour, cols, self.lag, self.taps)
-        return with_bone_channels(output, mapped) if self.basis == "bones" else mapped
+        return self._rebuild(output, mapped)
 
 
 @output_shapers.register("lock_feet")
